@@ -1,0 +1,100 @@
+"""Semantic checks of missions that need geometry: pure functions returning messages.
+
+The loader calls these after the XSD has passed and the model has been built; each
+returns ``None``/an empty list when fine, otherwise plain sentences for the engineer.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+from collections.abc import Iterable, Iterator
+
+import numpy as np
+
+from executive.core.frames import AircraftPlacement, Pose2, aircraft_from_robot, pan_tilt_towards
+from executive.core.geometry import distance_to_shape, polygon_problem
+from executive.core.model import CameraSpec, Feature, Frame, Mission
+
+__all__ = ["clearance_problems", "polygon_problem", "suggest", "why_not_visible"]
+
+
+def suggest(name: str, known: Iterable[str]) -> str:
+    """``" (did you mean 'x'?)"`` when a known name is close to ``name``, else ``""``."""
+    close = difflib.get_close_matches(name, list(known), n=1, cutoff=0.6)
+    return f" (did you mean '{close[0]}'?)" if close else ""
+
+
+def clearance_problems(
+    mission: Mission, placement: AircraftPlacement, label: str, x: float, y: float, frame: Frame
+) -> Iterator[str]:
+    """Why the robot cannot stand at (x, y): too close to the aircraft or in a forbidden zone.
+
+    The robot needs half its width clear of every footprint shape and forbidden zone;
+    shapes are compared in their own frame (the airport <-> aircraft map is rigid).
+    """
+    half = mission.platform.half_width
+    if frame is Frame.AIRCRAFT:
+        xy_f = (x, y)
+        xy_a = tuple(placement.to_airport_xy((x, y)))
+    else:
+        xy_a = (x, y)
+        xy_f = tuple(placement.to_aircraft_xy((x, y)))
+    for shape in mission.aircraft.footprint:
+        d = distance_to_shape(xy_f[0], xy_f[1], shape)
+        if d < half:
+            where = "inside" if d == 0.0 else f"{d:.2f} m from"
+            yield (
+                f"{label} is {where} the aircraft footprint '{shape.id}'; the robot needs "
+                f"{half:.2f} m (half its width)"
+            )
+    for zone in mission.airport.zones:
+        px, py = xy_f if zone.frame is Frame.AIRCRAFT else xy_a
+        d = distance_to_shape(px, py, zone.shape)
+        if d < half:
+            where = "inside" if d == 0.0 else f"{d:.2f} m from"
+            yield (
+                f"{label} is {where} forbidden zone '{zone.id}' ({zone.kind.value}); the robot "
+                f"needs {half:.2f} m (half its width)"
+            )
+
+
+def _deg_range(limits: tuple[float, float]) -> str:
+    return f"{math.degrees(limits[0]):.0f}..{math.degrees(limits[1]):.0f}"
+
+
+def _within(angle: float, lo: float, hi: float) -> bool:
+    return any(lo <= a <= hi for a in (angle, angle - 2 * math.pi, angle + 2 * math.pi))
+
+
+def why_not_visible(
+    camera: CameraSpec, feature: Feature, pose_f: Pose2, origin_height: float
+) -> str | None:
+    """Why ``camera`` cannot see ``feature`` from a robot at ``pose_f``, or None if it can.
+
+    The feature's centroid must be within its detection range of the camera, and the
+    pan-tilt unit must be able to bring it into the field of view: the pan and tilt that
+    centre it may exceed the unit's limits by at most half the field of view.
+    """
+    f_from_r = aircraft_from_robot(pose_f, origin_height)
+    target_r = f_from_r.inverse().apply(feature.centroid())
+    mount = np.array(camera.mount)
+    distance = float(np.linalg.norm(target_r - mount))
+    if distance > feature.detection_range:
+        return (
+            f"is {distance:.1f} m from camera '{camera.id}', beyond its detection range "
+            f"of {feature.detection_range:g} m"
+        )
+    pan, tilt = pan_tilt_towards(mount, camera.mount_yaw, target_r)
+    half_h, half_v = camera.horizontal_fov / 2, camera.vertical_fov / 2
+    if not _within(pan, camera.pan_limits[0] - half_h, camera.pan_limits[1] + half_h):
+        return (
+            f"needs a pan of {math.degrees(pan):.0f} deg on camera '{camera.id}', outside its "
+            f"limits {_deg_range(camera.pan_limits)} deg (field of view included)"
+        )
+    if not camera.tilt_limits[0] - half_v <= tilt <= camera.tilt_limits[1] + half_v:
+        return (
+            f"needs a tilt of {math.degrees(tilt):.0f} deg on camera '{camera.id}', outside its "
+            f"limits {_deg_range(camera.tilt_limits)} deg (field of view included)"
+        )
+    return None

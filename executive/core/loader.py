@@ -1,0 +1,751 @@
+"""Strict loading of aircraft and mission XML into the mission model.
+
+The pipeline for every file is: hardened parse (:mod:`executive.core.xmlsafe`) -> root
+element and namespace -> XSD -> build with semantic checks. Every problem of every stage
+that can run is collected, each at ``file:line:column``; if there is any, the loader
+raises :class:`~executive.core.problems.InvalidInputError` and returns nothing.
+
+>>> mission = load_mission(Path("missions/a320/preflight.xml"))      # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable
+from pathlib import Path
+from types import MappingProxyType
+from typing import TypeVar
+
+from lxml import etree
+
+from executive.core import checks
+from executive.core.frames import Pose2
+from executive.core.model import (
+    Aircraft,
+    Airport,
+    CameraKind,
+    CameraSpec,
+    Checkpoint,
+    Circle,
+    Dimensions,
+    Feature,
+    ForbiddenZone,
+    Frame,
+    InspectionItem,
+    InspectionMethod,
+    LaserSpec,
+    Mission,
+    Navigation,
+    Platform,
+    Point3,
+    Polygon,
+    SafetyRadii,
+    ServoMethod,
+    Shape,
+    TurnMode,
+    Waypoint,
+    ZoneKind,
+)
+from executive.core.problems import InvalidInputError, Problem, ProblemSink, SourceLocation
+from executive.core.resources import schema_path
+from executive.core.xmlsafe import XmlDocument, parse_xml, validate_against
+
+AIRCRAFT_NS = "urn:walkaround:aircraft:1"
+MISSION_NS = "urn:walkaround:mission:1"
+KNOWN_ROOTS = {
+    "aircraft": AIRCRAFT_NS,
+    "mission": MISSION_NS,
+}
+
+E = TypeVar("E")
+
+
+def _display(path: Path) -> str:
+    """The path as the user will recognise it: relative to the working directory if inside."""
+    try:
+        return str(path.resolve().relative_to(Path.cwd().resolve()))
+    except (ValueError, OSError):
+        return str(path)
+
+
+def _local(element: etree._Element) -> str:
+    return etree.QName(element).localname
+
+
+class _Reader:
+    """Typed attribute access on a schema-valid document, recording semantic problems."""
+
+    def __init__(self, doc: XmlDocument, sink: ProblemSink) -> None:
+        self.doc = doc
+        self.sink = sink
+        self.ns = etree.QName(doc.root).namespace or ""
+
+    # locations ----------------------------------------------------------------------------
+    def where(self, element: etree._Element, attribute: str | None = None) -> SourceLocation:
+        line, column = self.doc.locate(element, attribute)
+        return SourceLocation(self.sink.file, line, column)
+
+    def problem(
+        self, element: etree._Element, code: str, message: str, attribute: str | None = None
+    ) -> None:
+        line, column = self.doc.locate(element, attribute)
+        self.sink.add(code, message, line, column)
+
+    # navigation ----------------------------------------------------------------------------
+    def child(self, element: etree._Element, name: str) -> etree._Element | None:
+        return element.find(f"{{{self.ns}}}{name}")
+
+    def children(self, element: etree._Element | None, name: str) -> list[etree._Element]:
+        if element is None:
+            return []
+        return element.findall(f"{{{self.ns}}}{name}")
+
+    def text(self, element: etree._Element | None) -> str:
+        if element is None:
+            return ""
+        return " ".join((element.text or "").split())
+
+    # attributes (the XSD has checked presence and lexical types) -----------------------------
+    def num(self, element: etree._Element, name: str, default: float | None = None) -> float:
+        raw = element.get(name)
+        if raw is None:
+            if default is None:
+                self.problem(element, "missing", f"<{_local(element)}> needs '{name}'")
+                return math.nan
+            return default
+        value = float(raw)
+        if not math.isfinite(value):
+            self.problem(
+                element, "not-finite", f"'{name}' must be a finite number, not '{raw}'", name
+            )
+        return value
+
+    def opt_num(self, element: etree._Element, name: str) -> float | None:
+        return None if element.get(name) is None else self.num(element, name)
+
+    def angle(self, element: etree._Element, name: str) -> float:
+        return math.radians(self.num(element, name))
+
+    def opt_angle(self, element: etree._Element, name: str) -> float | None:
+        value = self.opt_num(element, name)
+        return None if value is None else math.radians(value)
+
+    def str_(self, element: etree._Element, name: str) -> str:
+        return (element.get(name) or "").strip()
+
+    def enum(self, element: etree._Element, name: str, kind: Callable[[str], E]) -> E:
+        return kind(self.str_(element, name))
+
+    # collections -----------------------------------------------------------------------------
+    def unique(self, elements: Iterable[etree._Element], what: str, attribute: str = "id") -> None:
+        """Report every element whose ``attribute`` repeats an earlier one."""
+        seen: dict[str, etree._Element] = {}
+        for element in elements:
+            key = self.str_(element, attribute)
+            if key in seen:
+                first = self.where(seen[key])
+                self.problem(
+                    element,
+                    "duplicate-id",
+                    f"duplicate {what} id '{key}' (first defined at line {first.line})",
+                    attribute,
+                )
+            else:
+                seen[key] = element
+
+    def polygon(self, element: etree._Element, pid: str) -> Polygon:
+        points = tuple(
+            (self.num(p, "x"), self.num(p, "y")) for p in self.children(element, "point")
+        )
+        reason = checks.polygon_problem(points)
+        if reason:
+            self.problem(element, "invalid-polygon", f"polygon '{pid}': {reason}")
+        return Polygon(pid, points)
+
+    def circle(self, element: etree._Element, cid: str) -> Circle:
+        return Circle(
+            cid, self.num(element, "x"), self.num(element, "y"), self.num(element, "radius")
+        )
+
+    def shape(self, element: etree._Element, sid: str) -> Shape:
+        if _local(element) == "circle":
+            return self.circle(element, sid)
+        return self.polygon(element, sid)
+
+    def pose(self, element: etree._Element) -> Pose2:
+        return Pose2(
+            self.num(element, "x"), self.num(element, "y"), self.angle(element, "heading-deg")
+        )
+
+
+# -- generic front end -------------------------------------------------------------------------
+def _open(path: Path, kind: str, sink: ProblemSink) -> XmlDocument | None:
+    """Parse, check the root and namespace, and validate against ``kind``'s XSD."""
+    doc = parse_xml(path, sink)
+    if doc is None:
+        return None
+    root = doc.root
+    qname = etree.QName(root)
+    expected_ns = KNOWN_ROOTS[kind]
+    if qname.localname != kind or qname.namespace != expected_ns:
+        line, column = doc.locate(root)
+        found = f"<{qname.localname}>" + (
+            f" in namespace '{qname.namespace}'" if qname.namespace else " with no namespace"
+        )
+        sink.add(
+            "wrong-root",
+            f"expected <{kind}> in namespace '{expected_ns}', found {found}",
+            line,
+            column,
+        )
+        return None
+    if not validate_against(doc, schema_path(kind), sink):
+        return None
+    return doc
+
+
+def detect_kind(path: Path) -> str | None:
+    """``aircraft`` or ``mission`` from the root element, without validating; else None."""
+    sink = ProblemSink(path)
+    doc = parse_xml(path, sink)
+    if doc is None:
+        return None
+    qname = etree.QName(doc.root)
+    for kind, ns in KNOWN_ROOTS.items():
+        if qname.localname == kind and qname.namespace == ns:
+            return kind
+    return None
+
+
+# -- aircraft ------------------------------------------------------------------------------------
+def load_aircraft(path: Path | str) -> Aircraft:
+    """Load and check an aircraft type file; raise :class:`InvalidInputError` on any problem."""
+    path = Path(path)
+    sink = ProblemSink(_display(path))
+    doc = _open(path, "aircraft", sink)
+    aircraft = _build_aircraft(doc, sink) if doc is not None else None
+    sink.raise_if_any()
+    assert aircraft is not None
+    return aircraft
+
+
+def _build_aircraft(doc: XmlDocument, sink: ProblemSink) -> Aircraft | None:
+    r = _Reader(doc, sink)
+    root = doc.root
+    origin_height = r.num(root, "origin-height")
+    dim = r.child(root, "dimensions")
+    assert dim is not None
+    dimensions = Dimensions(
+        r.num(dim, "length"), r.num(dim, "span"), r.num(dim, "height"), r.num(dim, "fuselage-width")
+    )
+    footprint_parent = r.child(root, "footprint")
+    assert footprint_parent is not None
+    footprint_el = [e for e in footprint_parent if isinstance(e.tag, str)]
+    outline_el = r.children(r.child(root, "outline"), "polygon")
+    r.unique([*footprint_el, *outline_el], "shape")
+    footprint = tuple(r.shape(e, r.str_(e, "id")) for e in footprint_el)
+    outline = tuple(r.polygon(e, r.str_(e, "id")) for e in outline_el)
+
+    feature_el = r.children(r.child(root, "features"), "feature")
+    item_el = r.children(r.child(root, "items"), "item")
+    r.unique(feature_el, "feature")
+    r.unique(item_el, "item")
+
+    features: dict[str, Feature] = {}
+    for fe in feature_el:
+        fid = r.str_(fe, "id")
+        points = []
+        for pe in r.children(fe, "point"):
+            has_z, has_h = pe.get("z") is not None, pe.get("h") is not None
+            if has_z == has_h:
+                r.problem(
+                    pe,
+                    "point-height",
+                    f"feature '{fid}': a point needs exactly one of 'z' (in F, down) or "
+                    f"'h' (height above the ground)" + (", not both" if has_z else ""),
+                )
+                z = 0.0
+            elif has_z:
+                z = r.num(pe, "z")
+            else:
+                z = origin_height - r.num(pe, "h")
+            points.append(Point3(r.num(pe, "x"), r.num(pe, "y"), z))
+        normal_el = r.child(fe, "normal")
+        normal = None
+        if normal_el is not None:
+            normal = Point3(r.num(normal_el, "x"), r.num(normal_el, "y"), r.num(normal_el, "z"))
+            if math.hypot(normal.x, normal.y, normal.z) < 1e-9:
+                r.problem(normal_el, "zero-normal", f"feature '{fid}': the normal is zero")
+        features.setdefault(
+            fid,
+            Feature(
+                id=fid,
+                kind=r.str_(fe, "kind"),
+                points=tuple(points),
+                detection_range=r.num(fe, "detection-range"),
+                servo=r.enum(fe, "servo", ServoMethod),
+                normal=normal,
+                where=r.where(fe),
+            ),
+        )
+
+    items: dict[str, InspectionItem] = {}
+    for ie in item_el:
+        iid, feature = r.str_(ie, "id"), r.str_(ie, "feature")
+        if feature not in features:
+            r.problem(
+                ie,
+                "unknown-reference",
+                f"item '{iid}' refers to feature '{feature}', which is not defined"
+                + checks.suggest(feature, features),
+                "feature",
+            )
+        items.setdefault(
+            iid,
+            InspectionItem(
+                iid, feature, r.enum(ie, "method", InspectionMethod), r.text(ie), r.where(ie)
+            ),
+        )
+    if sink:
+        return None
+    return Aircraft(
+        type=r.str_(root, "type"),
+        origin_height=origin_height,
+        dimensions=dimensions,
+        footprint=footprint,
+        outline=outline,
+        features=MappingProxyType(features),
+        items=MappingProxyType(items),
+        description=r.text(r.child(root, "description")),
+        source=sink.file,
+    )
+
+
+# -- mission ---------------------------------------------------------------------------------------
+def default_library_root(mission_path: Path) -> Path:
+    """The mission library a mission file belongs to: ``<root>/<type>/<mission>.xml``."""
+    return mission_path.resolve().parent.parent
+
+
+def load_mission(path: Path | str, library_root: Path | str | None = None) -> Mission:
+    """Load and check a mission and its aircraft; raise :class:`InvalidInputError` on any problem.
+
+    The aircraft file is resolved relative to the mission file and must stay inside
+    ``library_root`` (default: the mission file's grandparent directory).
+    """
+    path = Path(path)
+    root_dir = Path(library_root) if library_root is not None else default_library_root(path)
+    sink = ProblemSink(_display(path))
+    doc = _open(path, "mission", sink)
+    mission = _build_mission(doc, sink, path, root_dir) if doc is not None else None
+    sink.raise_if_any()
+    assert mission is not None
+    return mission
+
+
+def _resolve_aircraft(
+    r: _Reader, mission_path: Path, root_dir: Path
+) -> tuple[Aircraft | None, list[Problem]]:
+    root = r.doc.root
+    ref = r.str_(root, "aircraft")
+    rel = Path(ref)
+    if rel.is_absolute() or ref.startswith(("/", "\\")) or ":" in ref.split("/")[0]:
+        r.problem(
+            root,
+            "aircraft-path",
+            f"aircraft path '{ref}' must be relative to the mission file",
+            "aircraft",
+        )
+        return None, []
+    library = root_dir.resolve()
+    target = (mission_path.resolve().parent / rel).resolve()
+    if not target.is_relative_to(library):
+        r.problem(
+            root,
+            "aircraft-path",
+            f"aircraft path '{ref}' leads outside the mission library root '{_display(library)}'",
+            "aircraft",
+        )
+        return None, []
+    if not target.is_file():
+        r.problem(root, "aircraft-path", f"aircraft file '{ref}' does not exist", "aircraft")
+        return None, []
+    try:
+        return load_aircraft(target), []
+    except InvalidInputError as exc:
+        r.problem(
+            root,
+            "aircraft-invalid",
+            f"aircraft file '{ref}' has {len(exc.problems)} problem(s), listed with its name",
+            "aircraft",
+        )
+        return None, list(exc.problems)
+
+
+def _build_mission(
+    doc: XmlDocument, sink: ProblemSink, path: Path, root_dir: Path
+) -> Mission | None:
+    r = _Reader(doc, sink)
+    root = doc.root
+    aircraft, aircraft_problems = _resolve_aircraft(r, path, root_dir)
+    sink.extend(aircraft_problems)
+
+    if aircraft is not None and r.str_(root, "aircraft-type") != aircraft.type:
+        r.problem(
+            root,
+            "aircraft-type",
+            f"aircraft-type '{r.str_(root, 'aircraft-type')}' does not match the aircraft "
+            f"file's type '{aircraft.type}'",
+            "aircraft-type",
+        )
+
+    platform = _build_platform(r, r.child(root, "platform"))
+    safety_el = r.child(root, "safety")
+    assert safety_el is not None
+    safety = SafetyRadii(
+        r.num(safety_el, "r-es"), r.num(safety_el, "r-oa-trigger"), r.num(safety_el, "estop-hold")
+    )
+    if not safety.r_es < safety.r_oa_trigger:
+        r.problem(
+            safety_el,
+            "safety-radii",
+            f"r-es ({safety.r_es:g} m) must be smaller than r-oa-trigger "
+            f"({safety.r_oa_trigger:g} m): avoidance must start before the emergency stop",
+            "r-es",
+        )
+
+    nav_el = r.child(root, "navigation")
+    assert nav_el is not None
+    navigation = Navigation(
+        cruise_speed=r.num(nav_el, "cruise-speed"),
+        inspection_speed=r.num(nav_el, "inspection-speed"),
+        position_tolerance=r.num(nav_el, "position-tolerance"),
+        heading_tolerance=r.angle(nav_el, "heading-tolerance-deg"),
+        turn_mode=r.enum(nav_el, "turn-mode", TurnMode),
+    )
+    for attr in ("cruise-speed", "inspection-speed"):
+        value = r.num(nav_el, attr)
+        if value > platform.max_speed:
+            r.problem(
+                nav_el,
+                "speed-limit",
+                f"{attr} {value:g} m/s exceeds the platform's max-speed {platform.max_speed:g} m/s",
+                attr,
+            )
+
+    airport_el = r.child(root, "airport")
+    assert airport_el is not None
+    zone_el = r.children(airport_el, "zone")
+    r.unique(zone_el, "zone")
+    zones = []
+    for ze in zone_el:
+        zid = r.str_(ze, "id")
+        shape_el = next(e for e in ze if isinstance(e.tag, str))
+        zones.append(
+            ForbiddenZone(
+                zid,
+                r.enum(ze, "kind", ZoneKind),
+                r.enum(ze, "frame", Frame),
+                r.shape(shape_el, zid),
+                r.where(ze),
+            )
+        )
+    station_el, parking_el = r.child(airport_el, "station"), r.child(airport_el, "parking")
+    assert station_el is not None and parking_el is not None
+    airport = Airport(r.pose(station_el), r.pose(parking_el), tuple(zones))
+
+    approach_el = r.child(root, "approach")
+    return_el = r.child(root, "return")
+    approach_wp = r.children(approach_el, "waypoint")
+    return_wp = r.children(return_el, "waypoint")
+    r.unique([*approach_wp, *return_wp], "waypoint")
+    approach = tuple(_waypoint(r, e, platform) for e in approach_wp)
+    return_route = tuple(_waypoint(r, e, platform) for e in return_wp)
+    handover_el = r.child(approach_el, "handover") if approach_el is not None else None
+    assert handover_el is not None
+    hpose = r.pose(handover_el)
+    handover = Waypoint(
+        "handover", hpose.x, hpose.y, Frame.AIRPORT, hpose.theta, None, r.where(handover_el)
+    )
+
+    checkpoint_el = r.children(r.child(root, "inspection"), "checkpoint")
+    r.unique(checkpoint_el, "checkpoint")
+    checkpoints = tuple(_checkpoint(r, e, platform, aircraft) for e in checkpoint_el)
+
+    if aircraft is None:
+        return None
+    mission = Mission(
+        id=r.str_(root, "id"),
+        aircraft=aircraft,
+        platform=platform,
+        safety=safety,
+        navigation=navigation,
+        airport=airport,
+        approach=approach,
+        handover=handover,
+        checkpoints=checkpoints,
+        return_route=return_route,
+        description=r.text(r.child(root, "description")),
+        source=sink.file,
+    )
+    # Geometry runs even when other problems were found, so all are reported at once;
+    # it skips references that did not resolve (already reported).
+    _check_placement(r, mission, checkpoint_el, [*approach_wp, *return_wp], station_el, handover_el)
+    return None if sink else mission
+
+
+def _build_platform(r: _Reader, el: etree._Element | None) -> Platform:
+    assert el is not None
+    camera_el = r.children(el, "camera")
+    laser_el = r.children(el, "laser")
+    r.unique(camera_el, "camera")
+    r.unique(laser_el, "laser")
+    cameras: dict[str, CameraSpec] = {}
+    for ce in camera_el:
+        cid = r.str_(ce, "id")
+        width_px, height_px = int(r.num(ce, "width-px")), int(r.num(ce, "height-px"))
+        image_w = int(r.num(ce, "image-width-px", float(width_px)))
+        image_h = int(r.num(ce, "image-height-px", float(height_px)))
+        pan = (r.angle(ce, "pan-min-deg"), r.angle(ce, "pan-max-deg"))
+        tilt = (r.angle(ce, "tilt-min-deg"), r.angle(ce, "tilt-max-deg"))
+        for name, (lo, hi) in (("pan", pan), ("tilt", tilt)):
+            if not lo < hi:
+                r.problem(
+                    ce,
+                    "limits-order",
+                    f"camera '{cid}': {name}-min-deg must be smaller than {name}-max-deg",
+                    f"{name}-min-deg",
+                )
+        if image_w > width_px or image_h > height_px:
+            r.problem(
+                ce,
+                "image-size",
+                f"camera '{cid}': the output image ({image_w}x{image_h}) is larger than the "
+                f"sensor ({width_px}x{height_px})",
+                "image-width-px",
+            )
+        kind = r.enum(ce, "kind", CameraKind)
+        baseline = r.opt_num(ce, "baseline")
+        if kind is CameraKind.STEREO and baseline is None:
+            r.problem(ce, "missing", f"stereo camera '{cid}' needs a 'baseline'")
+        cameras.setdefault(
+            cid,
+            CameraSpec(
+                id=cid,
+                kind=kind,
+                mount=(r.num(ce, "x"), r.num(ce, "y"), r.num(ce, "z")),
+                mount_yaw=r.angle(ce, "yaw-deg"),
+                width_px=width_px,
+                height_px=height_px,
+                pixel_size=r.num(ce, "pixel-um") * 1e-6,
+                focal_length=r.num(ce, "focal-mm") * 1e-3,
+                image_width_px=image_w,
+                image_height_px=image_h,
+                pan_limits=pan,
+                tilt_limits=tilt,
+                pan_rate=r.angle(ce, "pan-rate-deg"),
+                tilt_rate=r.angle(ce, "tilt-rate-deg"),
+                rate_hz=r.num(ce, "rate-hz"),
+                baseline=baseline,
+                where=r.where(ce),
+            ),
+        )
+    lasers: dict[str, LaserSpec] = {}
+    for le in laser_el:
+        lid = r.str_(le, "id")
+        lasers.setdefault(
+            lid,
+            LaserSpec(
+                id=lid,
+                mount=(r.num(le, "x"), r.num(le, "y"), r.num(le, "z")),
+                mount_yaw=r.angle(le, "yaw-deg"),
+                fov=r.angle(le, "fov-deg"),
+                resolution=r.angle(le, "resolution-deg"),
+                range=r.num(le, "range"),
+                rate_hz=r.num(le, "rate-hz"),
+                where=r.where(le),
+            ),
+        )
+    return Platform(
+        length=r.num(el, "length"),
+        width=r.num(el, "width"),
+        max_speed=r.num(el, "max-speed"),
+        max_angular_speed=r.num(el, "max-angular-speed"),
+        max_acceleration=r.num(el, "max-acceleration"),
+        max_angular_acceleration=r.num(el, "max-angular-acceleration"),
+        max_jerk=r.num(el, "max-jerk"),
+        cameras=MappingProxyType(cameras),
+        lasers=MappingProxyType(lasers),
+    )
+
+
+def _waypoint(r: _Reader, el: etree._Element, platform: Platform) -> Waypoint:
+    wid = r.str_(el, "id")
+    speed = r.opt_num(el, "speed")
+    if speed is not None and speed > platform.max_speed:
+        r.problem(
+            el,
+            "speed-limit",
+            f"waypoint '{wid}': speed {speed:g} m/s exceeds the platform's max-speed "
+            f"{platform.max_speed:g} m/s",
+            "speed",
+        )
+    frame = Frame(r.str_(el, "frame")) if el.get("frame") else Frame.AIRPORT
+    return Waypoint(
+        wid,
+        r.num(el, "x"),
+        r.num(el, "y"),
+        frame,
+        r.opt_angle(el, "heading-deg"),
+        speed,
+        r.where(el),
+    )
+
+
+def _checkpoint(
+    r: _Reader, el: etree._Element, platform: Platform, aircraft: Aircraft | None
+) -> Checkpoint:
+    cid = r.str_(el, "id")
+    item_refs = r.children(el, "inspect")
+    items = tuple(r.str_(ie, "item") for ie in item_refs)
+    r.unique(item_refs, f"inspected item in checkpoint '{cid}'", "item")
+    camera = el.get("camera")
+    target = el.get("target")
+    if camera is not None and camera not in platform.cameras:
+        r.problem(
+            el,
+            "unknown-reference",
+            f"checkpoint '{cid}': camera '{camera}' is not a platform camera"
+            + checks.suggest(camera, platform.cameras),
+            "camera",
+        )
+    if target is not None and camera is None:
+        r.problem(
+            el,
+            "target-without-camera",
+            f"checkpoint '{cid}': a servo target needs a camera (add camera=\"...\")",
+            "target",
+        )
+    if aircraft is not None:
+        if target is not None and target not in aircraft.features:
+            r.problem(
+                el,
+                "unknown-reference",
+                f"checkpoint '{cid}': target '{target}' is not a feature of the aircraft"
+                + checks.suggest(target, aircraft.features),
+                "target",
+            )
+        for ie, item in zip(item_refs, items, strict=True):
+            if item not in aircraft.items:
+                r.problem(
+                    ie,
+                    "unknown-reference",
+                    f"checkpoint '{cid}': item '{item}' is not an inspection item of the "
+                    f"aircraft" + checks.suggest(item, aircraft.items),
+                    "item",
+                )
+    servo = el.get("servo")
+    return Checkpoint(
+        id=cid,
+        name=r.str_(el, "name") or cid,
+        pose=r.pose(el),
+        items=items,
+        camera=camera,
+        target=target,
+        servo=ServoMethod(servo) if servo else None,
+        dwell=r.num(el, "dwell", 0.0),
+        where=r.where(el),
+    )
+
+
+def _check_placement(
+    r: _Reader,
+    mission: Mission,
+    checkpoint_el: list[etree._Element],
+    waypoint_el: list[etree._Element],
+    station_el: etree._Element,
+    handover_el: etree._Element,
+) -> None:
+    """Geometry across the two files: clearances, zones, visibility of targets and items."""
+    placement = mission.nominal_placement()
+    places: list[tuple[etree._Element, str, float, float, Frame]] = []
+    for ce, cp in zip(checkpoint_el, mission.checkpoints, strict=True):
+        places.append((ce, f"checkpoint '{cp.id}'", cp.pose.x, cp.pose.y, Frame.AIRCRAFT))
+    for we, wp in zip(waypoint_el, (*mission.approach, *mission.return_route), strict=True):
+        places.append((we, f"waypoint '{wp.id}'", wp.x, wp.y, wp.frame))
+    st = mission.airport.station
+    places.append((station_el, "the charging station", st.x, st.y, Frame.AIRPORT))
+    places.append(
+        (handover_el, "the handover point", mission.handover.x, mission.handover.y, Frame.AIRPORT)
+    )
+    for element, label, x, y, frame in places:
+        for message in checks.clearance_problems(mission, placement, label, x, y, frame):
+            r.problem(element, "clearance", message)
+
+    for ce, cp in zip(checkpoint_el, mission.checkpoints, strict=True):
+        known_target = cp.target in mission.aircraft.features
+        if known_target and cp.camera in mission.platform.cameras:
+            assert cp.target is not None and cp.camera is not None
+            camera = mission.platform.cameras[cp.camera]
+            feature = mission.aircraft.features[cp.target]
+            reason = checks.why_not_visible(
+                camera, feature, cp.pose, mission.aircraft.origin_height
+            )
+            if reason:
+                r.problem(
+                    ce,
+                    "target-not-visible",
+                    f"checkpoint '{cp.id}': servo target '{cp.target}' {reason}",
+                    "target",
+                )
+        for ie, item_id in zip(r.children(ce, "inspect"), cp.items, strict=True):
+            if item_id not in mission.aircraft.items:
+                continue
+            feature = mission.aircraft.feature_of(item_id)
+            reasons = [
+                checks.why_not_visible(cam, feature, cp.pose, mission.aircraft.origin_height)
+                for cam in mission.platform.cameras.values()
+            ]
+            if all(reasons):
+                r.problem(
+                    ie,
+                    "item-not-visible",
+                    f"checkpoint '{cp.id}': item '{item_id}' cannot be inspected from here: "
+                    f"its feature '{feature.id}' {min(reasons, key=len)}",
+                    "item",
+                )
+
+
+# -- any file ----------------------------------------------------------------------
+def check_file(path: Path | str, library_root: Path | str | None = None) -> list[Problem]:
+    """Every problem of an aircraft or mission file (empty when valid); never raises."""
+    path = Path(path)
+    kind = detect_kind(path)
+    loaders: dict[str, Callable[[Path], object]] = {
+        "aircraft": load_aircraft,
+        "mission": lambda p: load_mission(p, library_root),
+    }
+    try:
+        if kind is None:
+            sink = ProblemSink(_display(path))
+            doc = parse_xml(path, sink)
+            if doc is not None:
+                qname = etree.QName(doc.root)
+                line, column = doc.locate(doc.root)
+                known = ", ".join(f"<{k}> ({ns})" for k, ns in KNOWN_ROOTS.items())
+                ns = (
+                    f" in namespace '{qname.namespace}'"
+                    if qname.namespace
+                    else " with no namespace"
+                )
+                sink.add(
+                    "wrong-root",
+                    f"unknown document <{qname.localname}>{ns}; expected one of {known}",
+                    line,
+                    column,
+                )
+            return list(sink.problems)
+        loaders[kind](path)
+    except InvalidInputError as exc:
+        return list(exc.problems)
+    return []

@@ -1,0 +1,326 @@
+"""Hardened XML parsing and XSD validation with precise problem locations.
+
+Every walkaround XML file (aircraft, mission, scenario) goes through :func:`parse_xml`:
+
+* no DTD is loaded and no entity is resolved, internal or external; a document with a
+  ``<!DOCTYPE`` at all is refused, so XXE and entity-expansion bombs never expand;
+* no network access, no huge trees (libxml2's default limits), at most
+  :data:`MAX_FILE_BYTES` bytes and :data:`MAX_DEPTH` levels;
+* every problem carries ``file:line:column``. libxml2 gives element line numbers only
+  (the line where the start tag *ends*), so columns are recovered from the source text.
+"""
+
+from __future__ import annotations
+
+import functools
+import re
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from lxml import etree
+
+from executive.core.problems import ProblemSink
+
+MAX_FILE_BYTES = 4 * 1024 * 1024
+"""Largest accepted input file; real missions are a few tens of kilobytes."""
+
+MAX_DEPTH = 32
+"""Deepest accepted element nesting; the formats need fewer than 8 levels."""
+
+_DOCTYPE = re.compile(rb"<!DOCTYPE", re.IGNORECASE)
+_NS_BRACES = re.compile(r"\{[^}'\s]*\}")  # {namespace-uri}, not {'a', 'b'} sets
+
+
+def _hardened_parser() -> etree.XMLParser:
+    """A new parser (parsers keep state, so one per parse) with every risky feature off."""
+    return etree.XMLParser(
+        resolve_entities=False,
+        no_network=True,
+        load_dtd=False,
+        dtd_validation=False,
+        huge_tree=False,
+        collect_ids=False,
+        remove_comments=False,
+    )
+
+
+@dataclass
+class XmlDocument:
+    """A parsed, not yet validated XML file and the text needed to locate its nodes."""
+
+    path: Path
+    display: str
+    root: etree._Element
+    text: str
+    _line_starts: list[int] = field(default_factory=list, repr=False)
+
+    def __post_init__(self) -> None:
+        starts = [0]
+        for m in re.finditer("\n", self.text):
+            starts.append(m.end())
+        self._line_starts = starts
+
+    # -- locating nodes -------------------------------------------------------------
+    def _offset(self, line: int, column: int = 1) -> int:
+        line = min(max(line, 1), len(self._line_starts))
+        return self._line_starts[line - 1] + max(column, 1) - 1
+
+    def _line_col(self, offset: int) -> tuple[int, int]:
+        lo, hi = 0, len(self._line_starts) - 1
+        while lo < hi:
+            mid = (lo + hi + 1) // 2
+            if self._line_starts[mid] <= offset:
+                lo = mid
+            else:
+                hi = mid - 1
+        return lo + 1, offset - self._line_starts[lo] + 1
+
+    def _start_tag_offset(self, element: etree._Element) -> int | None:
+        """Offset of ``<name`` for ``element``: libxml2 reports the line where the tag ends."""
+        line = element.sourceline or 0
+        if line <= 0:
+            return None
+        name = etree.QName(element).localname
+        pattern = re.compile(r"<(?:[A-Za-z_][\w.\-]*:)?" + re.escape(name) + r"(?=[\s/>])")
+        # The nth element of that name whose start tag ends on this line.
+        same_line = [e for e in element.getroottree().iter(element.tag) if e.sourceline == line]
+        nth = same_line.index(element) if element in same_line else 0
+        end = self._offset(line + 1)
+        # Search backwards line by line for a start tag that can end on `line`.
+        for first in range(line, max(line - 50, 0), -1):
+            matches = list(pattern.finditer(self.text, self._offset(first), end))
+            if matches:
+                if first == line:
+                    return matches[min(nth, len(matches) - 1)].start()
+                return matches[-1].start()
+        return None
+
+    def locate(self, element: etree._Element, attribute: str | None = None) -> tuple[int, int]:
+        """(line, column) of ``element``'s start tag, or of one of its attributes."""
+        start = self._start_tag_offset(element)
+        if start is None:
+            return element.sourceline or 0, 0
+        if attribute is not None:
+            tag_end = self.text.find(">", start)
+            tag_end = len(self.text) if tag_end < 0 else tag_end
+            m = re.compile(r"\s(" + re.escape(attribute) + r")\s*=").search(
+                self.text, start, tag_end
+            )
+            if m:
+                return self._line_col(m.start(1))
+        return self._line_col(start)
+
+    def iter_elements(self) -> Iterator[etree._Element]:
+        """Every element, in document order (comments and processing instructions skipped)."""
+        return self.root.iter(etree.Element)
+
+
+def _read_limited(path: Path, sink: ProblemSink) -> bytes | None:
+    try:
+        size = path.stat().st_size
+        if size > MAX_FILE_BYTES:
+            sink.add(
+                "too-large",
+                f"file is {size} bytes; the limit is {MAX_FILE_BYTES} bytes",
+                1,
+                1,
+            )
+            return None
+        with path.open("rb") as handle:
+            data = handle.read(MAX_FILE_BYTES + 1)
+    except FileNotFoundError:
+        sink.add("not-found", "file not found")
+        return None
+    except IsADirectoryError:
+        sink.add("not-a-file", "is a directory, not an XML file")
+        return None
+    except OSError as exc:
+        sink.add("unreadable", f"cannot read the file: {exc.strerror or exc}")
+        return None
+    return data
+
+
+def parse_xml(path: Path, sink: ProblemSink) -> XmlDocument | None:
+    """Parse ``path`` with the hardened parser; on failure record problems and return None."""
+    data = _read_limited(path, sink)
+    if data is None:
+        return None
+    return parse_bytes(data, path, sink)
+
+
+def parse_bytes(data: bytes, path: Path, sink: ProblemSink) -> XmlDocument | None:
+    """Parse XML ``data`` read from ``path`` (used for messages only)."""
+    if not data.strip():
+        sink.add("empty", "file is empty; expected an XML document", 1, 1)
+        return None
+    if len(data) > MAX_FILE_BYTES:
+        sink.add("too-large", f"input is larger than {MAX_FILE_BYTES} bytes", 1, 1)
+        return None
+    doctype = _DOCTYPE.search(data)
+    if doctype:
+        line = data.count(b"\n", 0, doctype.start()) + 1
+        col = doctype.start() - (data.rfind(b"\n", 0, doctype.start()) + 1) + 1
+        sink.add(
+            "doctype",
+            "DOCTYPE declarations are not allowed: walkaround files use no DTD and no "
+            "entities (this also blocks external-entity and entity-expansion attacks)",
+            line,
+            col,
+        )
+        return None
+    parser = _hardened_parser()
+    try:
+        root = etree.fromstring(data, parser)
+    except etree.XMLSyntaxError:
+        entries = [e for e in parser.error_log if e.level >= etree.ErrorLevels.ERROR]
+        if not entries:
+            sink.add("xml-syntax", "not well-formed XML", 1, 1)
+        for entry in entries[:10]:
+            message = entry.message.strip() or "not well-formed XML"
+            if message == "Document is empty" or message.startswith("Start tag expected"):
+                message = "not an XML document (no root element found)"
+            sink.add("xml-syntax", message, entry.line, entry.column)
+        return None
+    except (ValueError, etree.LxmlError) as exc:  # e.g. unsupported encodings
+        sink.add("xml-syntax", f"cannot parse the file: {exc}", 1, 1)
+        return None
+    if root.getroottree().docinfo.doctype:  # e.g. a UTF-16 file the byte scan missed
+        sink.add("doctype", "DOCTYPE declarations are not allowed", 1, 1)
+        return None
+    text = data.decode(_declared_encoding(root), errors="replace")
+    doc = XmlDocument(path=path, display=sink.file, root=root, text=text)
+    if _too_deep(root):
+        sink.add("too-deep", f"elements are nested more than {MAX_DEPTH} levels deep", 1, 1)
+        return None
+    for node in root.iter(etree.Entity):  # undeclared references cannot survive parsing,
+        line, col = doc.locate(node.getparent())  # but keep the guarantee explicit
+        sink.add("entity", "entity references are not allowed", line, col)
+    return None if sink else doc
+
+
+def _declared_encoding(root: etree._Element) -> str:
+    encoding = root.getroottree().docinfo.encoding or "utf-8"
+    try:
+        "".encode(encoding)
+    except LookupError:
+        return "utf-8"
+    return encoding
+
+
+def _too_deep(root: etree._Element) -> bool:
+    stack = [(root, 1)]
+    while stack:
+        element, depth = stack.pop()
+        if depth > MAX_DEPTH:
+            return True
+        stack.extend((child, depth + 1) for child in element)
+    return False
+
+
+# -- XSD ------------------------------------------------------------------------------
+@functools.cache
+def load_schema(xsd_path: Path) -> etree.XMLSchema:
+    """Compile (once) one of walkaround's own XSD files."""
+    tree = etree.parse(str(xsd_path), _hardened_parser())
+    return etree.XMLSchema(tree)
+
+
+_TYPE_WORDS = {
+    "xs:double": "a number",
+    "finiteDouble": "a finite number",
+    "positiveLength": "a number greater than 0",
+    "positiveDouble": "a number greater than 0",
+    "nonNegative": "a number of at least 0",
+    "angleDeg": "an angle in degrees between -360 and 360",
+    "fovDeg": "an angle in degrees between 0 and 360",
+    "identifier": "an identifier (a letter, then letters, digits, '_', '.' or '-')",
+    "nonEmptyToken": "a non-empty name",
+    "relativePath": "a relative file path",
+    "xs:positiveInteger": "a whole number greater than 0",
+    "xs:integer": "a whole number",
+    "xs:token": "a name",
+}
+
+
+def _plain_facet(text: str) -> str:
+    """Reword libxml2's ``[facet '...']`` sentences."""
+    m = re.match(r"\[facet '(\w+)'\] The value '([^']*)' (.*)", text, re.S)
+    if not m:
+        return text
+    facet, value, rest = m.groups()
+    if facet == "enumeration":
+        options = re.findall(r"'([^']*)'", rest)
+        return f"'{value}' is not one of: {', '.join(options)}"
+    bound = re.search(r"'([^']*)'\.?$", rest)
+    limit = bound.group(1) if bound else ""
+    wording = {
+        "minExclusive": f"must be greater than {limit}",
+        "maxExclusive": f"must be smaller than {limit}",
+        "minInclusive": f"must be at least {limit}",
+        "maxInclusive": f"must be at most {limit}",
+    }.get(facet)
+    if wording:
+        return f"{wording}, not {value}"
+    if facet == "pattern":
+        if "A-Za-z0-9_" in rest:
+            return f"'{value}' is not {_TYPE_WORDS['identifier']}"
+        return f"'{value}' is not in the expected form"
+    return f"'{value}' {rest}".rstrip(".")
+
+
+def _plain_schema_message(message: str) -> tuple[str, str | None]:
+    """A shorter, namespace-free wording of a libxml2 validity message, and the attribute."""
+    text = _NS_BRACES.sub("", message).strip()
+    attribute = None
+    m = re.match(r"Element '([^']+)', attribute '([^']+)': (.*)", text, re.S)
+    if m:
+        element, attribute, rest = m.groups()
+        type_m = re.match(r"'(.*)' is not a valid value of the atomic type '([^']+)'\.", rest)
+        if type_m:
+            value, type_name = type_m.groups()
+            wanted = _TYPE_WORDS.get(type_name, f"a valid {type_name}")
+            rest = f"'{value}' is not {wanted}"
+        elif rest.startswith("The attribute") and "is not allowed" in rest:
+            rest = "unknown attribute"
+        else:
+            rest = _plain_facet(rest)
+        text = f"<{element}> attribute '{attribute}': {rest}"
+        return text.rstrip("."), attribute
+    m = re.match(r"Element '([^']+)': (.*)", text, re.S)
+    if m:
+        element, rest = m.groups()
+        missing = re.match(r"The attribute '([^']+)' is required but missing\.", rest)
+        if missing:
+            return f"<{element}> is missing the required attribute '{missing.group(1)}'", None
+        unexpected = re.match(r"This element is not expected\.(?: Expected is (.*))?", rest, re.S)
+        if unexpected:
+            expected = unexpected.group(1)
+            if expected:
+                names = re.findall(r"[\w\-]+", expected.strip(" ().").replace("##other", ""))
+                wanted = ", ".join(f"<{n}>" for n in names)
+                return f"<{element}> is not expected here; expected {wanted}", None
+            return f"<{element}> is not expected here", None
+        missing_child = re.match(r"Missing child element\(s\)\. Expected is (.*)", rest, re.S)
+        if missing_child:
+            names = re.findall(r"[\w\-]+", missing_child.group(1))
+            wanted = ", ".join(f"<{n}>" for n in names)
+            return f"<{element}> is incomplete: missing {wanted}", None
+        return f"<{element}>: {rest}".rstrip("."), None
+    return text.rstrip("."), None
+
+
+def validate_against(doc: XmlDocument, xsd_path: Path, sink: ProblemSink) -> bool:
+    """Validate ``doc`` against an XSD; record every violation with its location."""
+    schema = load_schema(xsd_path)
+    if schema.validate(doc.root):
+        return True
+    tree = doc.root.getroottree()
+    for entry in schema.error_log:
+        message, attribute = _plain_schema_message(entry.message)
+        line, column = entry.line, entry.column
+        nodes = tree.xpath(entry.path) if entry.path else []
+        if nodes and isinstance(nodes[0], etree._Element):
+            line, column = doc.locate(nodes[0], attribute)
+        sink.add("schema", message, line, column)
+    return False
