@@ -16,7 +16,13 @@ from executive.core.frames import AircraftPlacement, Pose2, aircraft_from_robot,
 from executive.core.geometry import distance_to_shape, polygon_problem
 from executive.core.model import CameraSpec, Feature, Frame, Mission
 
-__all__ = ["clearance_problems", "polygon_problem", "suggest", "why_not_visible"]
+__all__ = [
+    "clearance_problems",
+    "polygon_problem",
+    "suggest",
+    "why_no_camera_sees",
+    "why_not_visible",
+]
 
 
 def suggest(name: str, known: Iterable[str]) -> str:
@@ -98,3 +104,18 @@ def why_not_visible(
             f"limits {_deg_range(camera.tilt_limits)} deg (field of view included)"
         )
     return None
+
+
+def why_no_camera_sees(
+    cameras: Iterable[CameraSpec], feature: Feature, pose_f: Pose2, origin_height: float
+) -> str | None:
+    """None if some camera can see ``feature`` from ``pose_f``; else why the nearest can't."""
+    f_from_r = aircraft_from_robot(pose_f, origin_height)
+    target_r = f_from_r.inverse().apply(feature.centroid())
+    reasons = []
+    for camera in cameras:
+        reason = why_not_visible(camera, feature, pose_f, origin_height)
+        if reason is None:
+            return None
+        reasons.append((float(np.linalg.norm(target_r - np.array(camera.mount))), reason))
+    return min(reasons)[1] if reasons else "has no camera to look at it"

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import functools
 import math
+import re
 from collections.abc import Iterable
 
+import numpy as np
 import shapely
 from shapely.geometry import Point
 from shapely.geometry import Polygon as ShapelyPolygon
@@ -28,14 +30,23 @@ def polygon_problem(points: Iterable[tuple[float, float]]) -> str | None:
     pts = list(points)
     if len(pts) < 3:
         return f"a polygon needs at least 3 points, it has {len(pts)}"
+    offsets = np.asarray(pts, dtype=float) - pts[0]
+    if np.linalg.matrix_rank(offsets, tol=1e-9) < 2:
+        return "the polygon has no area: its points are all on one line"
     poly = ShapelyPolygon(pts)
-    if not poly.is_valid:
-        reason = explain_validity(poly)
-        reason = reason.replace("Self-intersection", "its edges cross each other at")
-        return f"not a valid simple polygon: {reason}"
-    if poly.area <= 1e-9:
-        return "the polygon has no area (its points are collinear)"
-    return None
+    if poly.is_valid:
+        return None
+    reason = explain_validity(poly)
+    m = re.match(r"([^\[]+)\[(\S+) (\S+)\]", reason)
+    if m:
+        kind, x, y = m.groups()
+        kind = {
+            "Self-intersection": "its edges cross each other",
+            "Ring Self-intersection": "its outline touches itself",
+            "Too few points": "it has too few distinct points",
+        }.get(kind, kind.lower())
+        return f"not a valid simple polygon: {kind} at ({float(x):g}, {float(y):g})"
+    return f"not a valid simple polygon: {reason}"
 
 
 def distance_to_shape(x: float, y: float, shape: Shape) -> float:

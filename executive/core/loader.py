@@ -137,19 +137,21 @@ class _Reader:
         return kind(self.str_(element, name))
 
     # collections -----------------------------------------------------------------------------
-    def unique(self, elements: Iterable[etree._Element], what: str, attribute: str = "id") -> None:
+    def unique(
+        self,
+        elements: Iterable[etree._Element],
+        what: str,
+        attribute: str = "id",
+        template: str = "duplicate {what} id '{key}' (first defined at line {line})",
+    ) -> None:
         """Report every element whose ``attribute`` repeats an earlier one."""
         seen: dict[str, etree._Element] = {}
         for element in elements:
             key = self.str_(element, attribute)
             if key in seen:
-                first = self.where(seen[key])
-                self.problem(
-                    element,
-                    "duplicate-id",
-                    f"duplicate {what} id '{key}' (first defined at line {first.line})",
-                    attribute,
-                )
+                line = self.where(seen[key]).line
+                message = template.format(what=what, key=key, line=line)
+                self.problem(element, "duplicate-id", message, attribute)
             else:
                 seen[key] = element
 
@@ -205,16 +207,17 @@ def _open(path: Path, kind: str, sink: ProblemSink) -> XmlDocument | None:
 
 
 def detect_kind(path: Path) -> str | None:
-    """``aircraft`` or ``mission`` from the root element, without validating; else None."""
+    """``aircraft`` or ``mission`` from the root element's name, without validating.
+
+    The namespace is not looked at here: a ``<mission>`` in the wrong namespace is a
+    mission with a mistake, reported by the mission loader.
+    """
     sink = ProblemSink(path)
     doc = parse_xml(path, sink)
     if doc is None:
         return None
-    qname = etree.QName(doc.root)
-    for kind, ns in KNOWN_ROOTS.items():
-        if qname.localname == kind and qname.namespace == ns:
-            return kind
-    return None
+    localname = etree.QName(doc.root).localname
+    return localname if localname in KNOWN_ROOTS else None
 
 
 # -- aircraft ------------------------------------------------------------------------------------
@@ -368,7 +371,8 @@ def _resolve_aircraft(
         )
         return None, []
     if not target.is_file():
-        r.problem(root, "aircraft-path", f"aircraft file '{ref}' does not exist", "aircraft")
+        what = "is a directory, not a file" if target.is_dir() else "does not exist"
+        r.problem(root, "aircraft-path", f"aircraft file '{ref}' {what}", "aircraft")
         return None, []
     try:
         return load_aircraft(target), []
@@ -608,7 +612,12 @@ def _checkpoint(
     cid = r.str_(el, "id")
     item_refs = r.children(el, "inspect")
     items = tuple(r.str_(ie, "item") for ie in item_refs)
-    r.unique(item_refs, f"inspected item in checkpoint '{cid}'", "item")
+    r.unique(
+        item_refs,
+        "item",
+        "item",
+        f"checkpoint '{cid}' inspects item '{{key}}' twice (first at line {{line}})",
+    )
     camera = el.get("camera")
     target = el.get("target")
     if camera is not None and camera not in platform.cameras:
@@ -702,16 +711,15 @@ def _check_placement(
             if item_id not in mission.aircraft.items:
                 continue
             feature = mission.aircraft.feature_of(item_id)
-            reasons = [
-                checks.why_not_visible(cam, feature, cp.pose, mission.aircraft.origin_height)
-                for cam in mission.platform.cameras.values()
-            ]
-            if all(reasons):
+            reason = checks.why_no_camera_sees(
+                mission.platform.cameras.values(), feature, cp.pose, mission.aircraft.origin_height
+            )
+            if reason:
                 r.problem(
                     ie,
                     "item-not-visible",
                     f"checkpoint '{cp.id}': item '{item_id}' cannot be inspected from here: "
-                    f"its feature '{feature.id}' {min(reasons, key=len)}",
+                    f"its feature '{feature.id}' {reason}",
                     "item",
                 )
 

@@ -12,6 +12,7 @@ Every walkaround XML file (aircraft, mission, scenario) goes through :func:`pars
 
 from __future__ import annotations
 
+import codecs
 import functools
 import re
 from collections.abc import Iterator
@@ -28,7 +29,7 @@ MAX_FILE_BYTES = 4 * 1024 * 1024
 MAX_DEPTH = 32
 """Deepest accepted element nesting; the formats need fewer than 8 levels."""
 
-_DOCTYPE = re.compile(rb"<!DOCTYPE", re.IGNORECASE)
+_DOCTYPE = re.compile(r"<!DOCTYPE", re.IGNORECASE)
 _NS_BRACES = re.compile(r"\{[^}'\s]*\}")  # {namespace-uri}, not {'a', 'b'} sets
 
 
@@ -149,18 +150,76 @@ def parse_xml(path: Path, sink: ProblemSink) -> XmlDocument | None:
     return parse_bytes(data, path, sink)
 
 
+_BOMS = (  # UTF-32 first: its little-endian BOM starts with UTF-16's
+    (codecs.BOM_UTF32_LE, "utf-32"),
+    (codecs.BOM_UTF32_BE, "utf-32"),
+    (codecs.BOM_UTF8, "utf-8-sig"),
+    (codecs.BOM_UTF16_LE, "utf-16"),
+    (codecs.BOM_UTF16_BE, "utf-16"),
+)
+_NO_BOM = (  # XML 1.0 appendix F: "<" or "<?" in a wide encoding without a BOM
+    (b"\x00\x00\x00<", "utf-32-be"),
+    (b"<\x00\x00\x00", "utf-32-le"),
+    (b"\x00<\x00?", "utf-16-be"),
+    (b"<\x00?\x00", "utf-16-le"),
+)
+_DECLARATION = re.compile(r"""^(\s*<\?xml[^>]*?\sencoding\s*=\s*)(["'])([A-Za-z][\w.\-]*)\2""")
+
+
+def _decode(data: bytes, sink: ProblemSink) -> str | None:
+    """The document as text, decoded *before* libxml2 sees it.
+
+    Decoding first means the DOCTYPE guard below sees every encoding (a byte scan misses
+    UTF-16, and libxml2 would process the internal subset before any later check).
+    """
+    codec = next((c for bom, c in _BOMS if data.startswith(bom)), None)
+    if codec is None:
+        codec = next((c for head, c in _NO_BOM if data.startswith(head)), None)
+    if codec is None:
+        declared = _DECLARATION.match(data[:200].decode("latin-1"))
+        if data.lstrip()[:1] != b"<":
+            sink.add("xml-syntax", "not an XML document (it does not start with '<')", 1, 1)
+            return None
+        codec = declared.group(3) if declared else "utf-8"
+        try:
+            codecs.lookup(codec)
+        except LookupError:
+            sink.add("encoding", f"unknown character encoding '{codec}'", 1, 1)
+            return None
+    try:
+        return data.decode(codec)
+    except UnicodeDecodeError as exc:
+        line = data.count(b"\n", 0, exc.start) + 1
+        column = exc.start - (data.rfind(b"\n", 0, exc.start) + 1) + 1
+        what = "not an XML document: " if exc.start < 64 else ""
+        sink.add(
+            "xml-syntax",
+            f"{what}not valid {codec.upper()} text (byte 0x{data[exc.start]:02x})",
+            line,
+            column,
+        )
+        return None
+
+
 def parse_bytes(data: bytes, path: Path, sink: ProblemSink) -> XmlDocument | None:
     """Parse XML ``data`` read from ``path`` (used for messages only)."""
-    if not data.strip():
-        sink.add("empty", "file is empty; expected an XML document", 1, 1)
-        return None
     if len(data) > MAX_FILE_BYTES:
         sink.add("too-large", f"input is larger than {MAX_FILE_BYTES} bytes", 1, 1)
         return None
-    doctype = _DOCTYPE.search(data)
+    if not data.strip():
+        sink.add("empty", "file is empty; expected an XML document", 1, 1)
+        return None
+    text = _decode(data, sink)
+    if text is None:
+        return None
+    text = text.removeprefix("\ufeff")
+    if not text.strip():
+        sink.add("empty", "file is empty; expected an XML document", 1, 1)
+        return None
+    doctype = _DOCTYPE.search(text)
     if doctype:
-        line = data.count(b"\n", 0, doctype.start()) + 1
-        col = doctype.start() - (data.rfind(b"\n", 0, doctype.start()) + 1) + 1
+        line = text.count("\n", 0, doctype.start()) + 1
+        col = doctype.start() - (text.rfind("\n", 0, doctype.start()) + 1) + 1
         sink.add(
             "doctype",
             "DOCTYPE declarations are not allowed: walkaround files use no DTD and no "
@@ -169,9 +228,12 @@ def parse_bytes(data: bytes, path: Path, sink: ProblemSink) -> XmlDocument | Non
             col,
         )
         return None
+    # libxml2 parses the UTF-8 re-encoding; lines are unchanged (only the declaration's
+    # encoding name is rewritten), and columns are recovered from `text`.
+    text = _DECLARATION.sub(lambda m: f"{m.group(1)}{m.group(2)}UTF-8{m.group(2)}", text, 1)
     parser = _hardened_parser()
     try:
-        root = etree.fromstring(data, parser)
+        root = etree.fromstring(text.encode("utf-8"), parser)
     except etree.XMLSyntaxError:
         entries = [e for e in parser.error_log if e.level >= etree.ErrorLevels.ERROR]
         if not entries:
@@ -182,16 +244,17 @@ def parse_bytes(data: bytes, path: Path, sink: ProblemSink) -> XmlDocument | Non
                 message = "not an XML document (no root element found)"
             sink.add("xml-syntax", message, entry.line, entry.column)
         return None
-    except (ValueError, etree.LxmlError) as exc:  # e.g. unsupported encodings
+    except (ValueError, etree.LxmlError) as exc:
         sink.add("xml-syntax", f"cannot parse the file: {exc}", 1, 1)
         return None
-    if root.getroottree().docinfo.doctype:  # e.g. a UTF-16 file the byte scan missed
-        sink.add("doctype", "DOCTYPE declarations are not allowed", 1, 1)
-        return None
-    text = data.decode(_declared_encoding(root), errors="replace")
     doc = XmlDocument(path=path, display=sink.file, root=root, text=text)
-    if _too_deep(root):
-        sink.add("too-deep", f"elements are nested more than {MAX_DEPTH} levels deep", 1, 1)
+    if root.getroottree().docinfo.doctype:  # unreachable after the text scan; kept as a guard
+        sink.add("doctype", "DOCTYPE declarations are not allowed", *doc.locate(root))
+        return None
+    deep = _first_too_deep(root)
+    if deep is not None:
+        line, column = doc.locate(deep)
+        sink.add("too-deep", f"elements are nested more than {MAX_DEPTH} levels deep", line, column)
         return None
     for node in root.iter(etree.Entity):  # undeclared references cannot survive parsing,
         line, col = doc.locate(node.getparent())  # but keep the guarantee explicit
@@ -199,23 +262,15 @@ def parse_bytes(data: bytes, path: Path, sink: ProblemSink) -> XmlDocument | Non
     return None if sink else doc
 
 
-def _declared_encoding(root: etree._Element) -> str:
-    encoding = root.getroottree().docinfo.encoding or "utf-8"
-    try:
-        "".encode(encoding)
-    except LookupError:
-        return "utf-8"
-    return encoding
-
-
-def _too_deep(root: etree._Element) -> bool:
+def _first_too_deep(root: etree._Element) -> etree._Element | None:
+    """The first element (in document order) nested deeper than :data:`MAX_DEPTH`."""
     stack = [(root, 1)]
     while stack:
         element, depth = stack.pop()
         if depth > MAX_DEPTH:
-            return True
-        stack.extend((child, depth + 1) for child in element)
-    return False
+            return element
+        stack.extend((child, depth + 1) for child in reversed(element))
+    return None
 
 
 # -- XSD ------------------------------------------------------------------------------
@@ -249,11 +304,13 @@ def _plain_facet(text: str) -> str:
     if not m:
         return text
     facet, value, rest = m.groups()
+    if value.strip().lstrip("+-").lower() in {"nan", "inf", "infinity"}:
+        return f"'{value}' is not a finite number"
     if facet == "enumeration":
         options = re.findall(r"'([^']*)'", rest)
         return f"'{value}' is not one of: {', '.join(options)}"
-    bound = re.search(r"'([^']*)'\.?$", rest)
-    limit = bound.group(1) if bound else ""
+    bounds = re.findall(r"'([^']*)'", rest)  # "... the maximum value ('360')."
+    limit = bounds[-1] if bounds else ""
     wording = {
         "minExclusive": f"must be greater than {limit}",
         "maxExclusive": f"must be smaller than {limit}",
@@ -316,11 +373,15 @@ def validate_against(doc: XmlDocument, xsd_path: Path, sink: ProblemSink) -> boo
     if schema.validate(doc.root):
         return True
     tree = doc.root.getroottree()
+    seen: set[tuple[int, int]] = set()
     for entry in schema.error_log:
         message, attribute = _plain_schema_message(entry.message)
         line, column = entry.line, entry.column
         nodes = tree.xpath(entry.path) if entry.path else []
         if nodes and isinstance(nodes[0], etree._Element):
             line, column = doc.locate(nodes[0], attribute)
+        if (line, column) in seen:  # libxml2 follows a failed facet with its consequences
+            continue
+        seen.add((line, column))
         sink.add("schema", message, line, column)
     return False
