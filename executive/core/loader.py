@@ -11,22 +11,19 @@ raises :class:`~executive.core.problems.InvalidInputError` and returns nothing.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterable
+from collections.abc import Callable
 from pathlib import Path
 from types import MappingProxyType
-from typing import TypeVar
 
 from lxml import etree
 
 from executive.core import checks
-from executive.core.frames import Pose2
 from executive.core.model import (
     Aircraft,
     Airport,
     CameraKind,
     CameraSpec,
     Checkpoint,
-    Circle,
     Dimensions,
     Feature,
     ForbiddenZone,
@@ -38,172 +35,30 @@ from executive.core.model import (
     Navigation,
     Platform,
     Point3,
-    Polygon,
     SafetyRadii,
     ServoMethod,
-    Shape,
     TurnMode,
     Waypoint,
     ZoneKind,
 )
-from executive.core.problems import InvalidInputError, Problem, ProblemSink, SourceLocation
+from executive.core.problems import InvalidInputError, Problem, ProblemSink
 from executive.core.resources import schema_path
-from executive.core.xmlsafe import XmlDocument, parse_xml, validate_against
+from executive.core.xmlreader import ElementReader, display_path, open_validated
+from executive.core.xmlsafe import XmlDocument, parse_xml
 
 AIRCRAFT_NS = "urn:walkaround:aircraft:1"
 MISSION_NS = "urn:walkaround:mission:1"
+TRACK_OF_WIDTH = 0.85
+"""Wheel track as a fraction of the platform width when a mission does not give it."""
+
 KNOWN_ROOTS = {
     "aircraft": AIRCRAFT_NS,
     "mission": MISSION_NS,
 }
 
-E = TypeVar("E")
 
-
-def _display(path: Path) -> str:
-    """The path as the user will recognise it: relative to the working directory if inside."""
-    try:
-        return str(path.resolve().relative_to(Path.cwd().resolve()))
-    except (ValueError, OSError):
-        return str(path)
-
-
-def _local(element: etree._Element) -> str:
-    return etree.QName(element).localname
-
-
-class _Reader:
-    """Typed attribute access on a schema-valid document, recording semantic problems."""
-
-    def __init__(self, doc: XmlDocument, sink: ProblemSink) -> None:
-        self.doc = doc
-        self.sink = sink
-        self.ns = etree.QName(doc.root).namespace or ""
-
-    # locations ----------------------------------------------------------------------------
-    def where(self, element: etree._Element, attribute: str | None = None) -> SourceLocation:
-        line, column = self.doc.locate(element, attribute)
-        return SourceLocation(self.sink.file, line, column)
-
-    def problem(
-        self, element: etree._Element, code: str, message: str, attribute: str | None = None
-    ) -> None:
-        line, column = self.doc.locate(element, attribute)
-        self.sink.add(code, message, line, column)
-
-    # navigation ----------------------------------------------------------------------------
-    def child(self, element: etree._Element, name: str) -> etree._Element | None:
-        return element.find(f"{{{self.ns}}}{name}")
-
-    def children(self, element: etree._Element | None, name: str) -> list[etree._Element]:
-        if element is None:
-            return []
-        return element.findall(f"{{{self.ns}}}{name}")
-
-    def text(self, element: etree._Element | None) -> str:
-        if element is None:
-            return ""
-        return " ".join((element.text or "").split())
-
-    # attributes (the XSD has checked presence and lexical types) -----------------------------
-    def num(self, element: etree._Element, name: str, default: float | None = None) -> float:
-        raw = element.get(name)
-        if raw is None:
-            if default is None:
-                self.problem(element, "missing", f"<{_local(element)}> needs '{name}'")
-                return math.nan
-            return default
-        value = float(raw)
-        if not math.isfinite(value):
-            self.problem(
-                element, "not-finite", f"'{name}' must be a finite number, not '{raw}'", name
-            )
-        return value
-
-    def opt_num(self, element: etree._Element, name: str) -> float | None:
-        return None if element.get(name) is None else self.num(element, name)
-
-    def angle(self, element: etree._Element, name: str) -> float:
-        return math.radians(self.num(element, name))
-
-    def opt_angle(self, element: etree._Element, name: str) -> float | None:
-        value = self.opt_num(element, name)
-        return None if value is None else math.radians(value)
-
-    def str_(self, element: etree._Element, name: str) -> str:
-        return (element.get(name) or "").strip()
-
-    def enum(self, element: etree._Element, name: str, kind: Callable[[str], E]) -> E:
-        return kind(self.str_(element, name))
-
-    # collections -----------------------------------------------------------------------------
-    def unique(
-        self,
-        elements: Iterable[etree._Element],
-        what: str,
-        attribute: str = "id",
-        template: str = "duplicate {what} id '{key}' (first defined at line {line})",
-    ) -> None:
-        """Report every element whose ``attribute`` repeats an earlier one."""
-        seen: dict[str, etree._Element] = {}
-        for element in elements:
-            key = self.str_(element, attribute)
-            if key in seen:
-                line = self.where(seen[key]).line
-                message = template.format(what=what, key=key, line=line)
-                self.problem(element, "duplicate-id", message, attribute)
-            else:
-                seen[key] = element
-
-    def polygon(self, element: etree._Element, pid: str) -> Polygon:
-        points = tuple(
-            (self.num(p, "x"), self.num(p, "y")) for p in self.children(element, "point")
-        )
-        reason = checks.polygon_problem(points)
-        if reason:
-            self.problem(element, "invalid-polygon", f"polygon '{pid}': {reason}")
-        return Polygon(pid, points)
-
-    def circle(self, element: etree._Element, cid: str) -> Circle:
-        return Circle(
-            cid, self.num(element, "x"), self.num(element, "y"), self.num(element, "radius")
-        )
-
-    def shape(self, element: etree._Element, sid: str) -> Shape:
-        if _local(element) == "circle":
-            return self.circle(element, sid)
-        return self.polygon(element, sid)
-
-    def pose(self, element: etree._Element) -> Pose2:
-        return Pose2(
-            self.num(element, "x"), self.num(element, "y"), self.angle(element, "heading-deg")
-        )
-
-
-# -- generic front end -------------------------------------------------------------------------
 def _open(path: Path, kind: str, sink: ProblemSink) -> XmlDocument | None:
-    """Parse, check the root and namespace, and validate against ``kind``'s XSD."""
-    doc = parse_xml(path, sink)
-    if doc is None:
-        return None
-    root = doc.root
-    qname = etree.QName(root)
-    expected_ns = KNOWN_ROOTS[kind]
-    if qname.localname != kind or qname.namespace != expected_ns:
-        line, column = doc.locate(root)
-        found = f"<{qname.localname}>" + (
-            f" in namespace '{qname.namespace}'" if qname.namespace else " with no namespace"
-        )
-        sink.add(
-            "wrong-root",
-            f"expected <{kind}> in namespace '{expected_ns}', found {found}",
-            line,
-            column,
-        )
-        return None
-    if not validate_against(doc, schema_path(kind), sink):
-        return None
-    return doc
+    return open_validated(path, kind, KNOWN_ROOTS[kind], schema_path(kind), sink)
 
 
 def detect_kind(path: Path) -> str | None:
@@ -224,7 +79,7 @@ def detect_kind(path: Path) -> str | None:
 def load_aircraft(path: Path | str) -> Aircraft:
     """Load and check an aircraft type file; raise :class:`InvalidInputError` on any problem."""
     path = Path(path)
-    sink = ProblemSink(_display(path))
+    sink = ProblemSink(display_path(path))
     doc = _open(path, "aircraft", sink)
     aircraft = _build_aircraft(doc, sink) if doc is not None else None
     sink.raise_if_any()
@@ -233,7 +88,7 @@ def load_aircraft(path: Path | str) -> Aircraft:
 
 
 def _build_aircraft(doc: XmlDocument, sink: ProblemSink) -> Aircraft | None:
-    r = _Reader(doc, sink)
+    r = ElementReader(doc, sink)
     root = doc.root
     origin_height = r.num(root, "origin-height")
     dim = r.child(root, "dimensions")
@@ -338,7 +193,7 @@ def load_mission(path: Path | str, library_root: Path | str | None = None) -> Mi
     """
     path = Path(path)
     root_dir = Path(library_root) if library_root is not None else default_library_root(path)
-    sink = ProblemSink(_display(path))
+    sink = ProblemSink(display_path(path))
     doc = _open(path, "mission", sink)
     mission = _build_mission(doc, sink, path, root_dir) if doc is not None else None
     sink.raise_if_any()
@@ -347,7 +202,7 @@ def load_mission(path: Path | str, library_root: Path | str | None = None) -> Mi
 
 
 def _resolve_aircraft(
-    r: _Reader, mission_path: Path, root_dir: Path
+    r: ElementReader, mission_path: Path, root_dir: Path
 ) -> tuple[Aircraft | None, list[Problem]]:
     root = r.doc.root
     ref = r.str_(root, "aircraft")
@@ -366,7 +221,8 @@ def _resolve_aircraft(
         r.problem(
             root,
             "aircraft-path",
-            f"aircraft path '{ref}' leads outside the mission library root '{_display(library)}'",
+            f"aircraft path '{ref}' leads outside the mission library root "
+            f"'{display_path(library)}'",
             "aircraft",
         )
         return None, []
@@ -389,7 +245,7 @@ def _resolve_aircraft(
 def _build_mission(
     doc: XmlDocument, sink: ProblemSink, path: Path, root_dir: Path
 ) -> Mission | None:
-    r = _Reader(doc, sink)
+    r = ElementReader(doc, sink)
     root = doc.root
     aircraft, aircraft_problems = _resolve_aircraft(r, path, root_dir)
     sink.extend(aircraft_problems)
@@ -498,7 +354,7 @@ def _build_mission(
     return None if sink else mission
 
 
-def _build_platform(r: _Reader, el: etree._Element | None) -> Platform:
+def _build_platform(r: ElementReader, el: etree._Element | None) -> Platform:
     assert el is not None
     camera_el = r.children(el, "camera")
     laser_el = r.children(el, "laser")
@@ -570,9 +426,19 @@ def _build_platform(r: _Reader, el: etree._Element | None) -> Platform:
                 where=r.where(le),
             ),
         )
+    width = r.num(el, "width")
+    track = r.num(el, "track", TRACK_OF_WIDTH * width)
+    if track > width:
+        r.problem(
+            el,
+            "track-width",
+            f"track {track:g} m is wider than the platform ({width:g} m)",
+            "track",
+        )
     return Platform(
         length=r.num(el, "length"),
-        width=r.num(el, "width"),
+        width=width,
+        track=track,
         max_speed=r.num(el, "max-speed"),
         max_angular_speed=r.num(el, "max-angular-speed"),
         max_acceleration=r.num(el, "max-acceleration"),
@@ -583,7 +449,7 @@ def _build_platform(r: _Reader, el: etree._Element | None) -> Platform:
     )
 
 
-def _waypoint(r: _Reader, el: etree._Element, platform: Platform) -> Waypoint:
+def _waypoint(r: ElementReader, el: etree._Element, platform: Platform) -> Waypoint:
     wid = r.str_(el, "id")
     speed = r.opt_num(el, "speed")
     if speed is not None and speed > platform.max_speed:
@@ -607,7 +473,7 @@ def _waypoint(r: _Reader, el: etree._Element, platform: Platform) -> Waypoint:
 
 
 def _checkpoint(
-    r: _Reader, el: etree._Element, platform: Platform, aircraft: Aircraft | None
+    r: ElementReader, el: etree._Element, platform: Platform, aircraft: Aircraft | None
 ) -> Checkpoint:
     cid = r.str_(el, "id")
     item_refs = r.children(el, "inspect")
@@ -668,7 +534,7 @@ def _checkpoint(
 
 
 def _check_placement(
-    r: _Reader,
+    r: ElementReader,
     mission: Mission,
     checkpoint_el: list[etree._Element],
     waypoint_el: list[etree._Element],
@@ -735,7 +601,7 @@ def check_file(path: Path | str, library_root: Path | str | None = None) -> list
     }
     try:
         if kind is None:
-            sink = ProblemSink(_display(path))
+            sink = ProblemSink(display_path(path))
             doc = parse_xml(path, sink)
             if doc is not None:
                 qname = etree.QName(doc.root)

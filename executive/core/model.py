@@ -231,6 +231,8 @@ class Platform:
     max_jerk: float
     cameras: Mapping[str, CameraSpec]
     lasers: Mapping[str, LaserSpec]
+    track: float = 0.0
+    """Left-to-right wheel centre distance (m), thesis eq. 2.2."""
 
     @property
     def half_width(self) -> float:

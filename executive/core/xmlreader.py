@@ -1,0 +1,170 @@
+"""Reading schema-valid walkaround XML into models, with problems located in the source.
+
+:func:`open_validated` is the front end every loader shares (hardened parse, root and
+namespace, XSD); :class:`ElementReader` gives typed attribute access and records semantic
+problems at the element or attribute they concern.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable
+from pathlib import Path
+from typing import TypeVar
+
+from lxml import etree
+
+from executive.core.frames import Pose2
+from executive.core.geometry import polygon_problem
+from executive.core.model import Circle, Polygon, Shape
+from executive.core.problems import ProblemSink, SourceLocation
+from executive.core.xmlsafe import XmlDocument, parse_xml, validate_against
+
+E = TypeVar("E")
+
+
+def display_path(path: Path) -> str:
+    """The path as the user will recognise it: relative to the working directory if inside."""
+    try:
+        return str(path.resolve().relative_to(Path.cwd().resolve()))
+    except (ValueError, OSError):
+        return str(path)
+
+
+def local_name(element: etree._Element) -> str:
+    return etree.QName(element).localname
+
+
+class ElementReader:
+    """Typed attribute access on a schema-valid document, recording semantic problems."""
+
+    def __init__(self, doc: XmlDocument, sink: ProblemSink) -> None:
+        self.doc = doc
+        self.sink = sink
+        self.ns = etree.QName(doc.root).namespace or ""
+
+    # locations ----------------------------------------------------------------------------
+    def where(self, element: etree._Element, attribute: str | None = None) -> SourceLocation:
+        line, column = self.doc.locate(element, attribute)
+        return SourceLocation(self.sink.file, line, column)
+
+    def problem(
+        self, element: etree._Element, code: str, message: str, attribute: str | None = None
+    ) -> None:
+        line, column = self.doc.locate(element, attribute)
+        self.sink.add(code, message, line, column)
+
+    # navigation ----------------------------------------------------------------------------
+    def child(self, element: etree._Element, name: str) -> etree._Element | None:
+        return element.find(f"{{{self.ns}}}{name}")
+
+    def children(self, element: etree._Element | None, name: str) -> list[etree._Element]:
+        if element is None:
+            return []
+        return element.findall(f"{{{self.ns}}}{name}")
+
+    def text(self, element: etree._Element | None) -> str:
+        if element is None:
+            return ""
+        return " ".join((element.text or "").split())
+
+    # attributes (the XSD has checked presence and lexical types) -----------------------------
+    def num(self, element: etree._Element, name: str, default: float | None = None) -> float:
+        raw = element.get(name)
+        if raw is None:
+            if default is None:
+                self.problem(element, "missing", f"<{local_name(element)}> needs '{name}'")
+                return math.nan
+            return default
+        value = float(raw)
+        if not math.isfinite(value):
+            self.problem(
+                element, "not-finite", f"'{name}' must be a finite number, not '{raw}'", name
+            )
+        return value
+
+    def opt_num(self, element: etree._Element, name: str) -> float | None:
+        return None if element.get(name) is None else self.num(element, name)
+
+    def angle(self, element: etree._Element, name: str) -> float:
+        return math.radians(self.num(element, name))
+
+    def opt_angle(self, element: etree._Element, name: str) -> float | None:
+        value = self.opt_num(element, name)
+        return None if value is None else math.radians(value)
+
+    def str_(self, element: etree._Element, name: str) -> str:
+        return (element.get(name) or "").strip()
+
+    def enum(self, element: etree._Element, name: str, kind: Callable[[str], E]) -> E:
+        return kind(self.str_(element, name))
+
+    # collections -----------------------------------------------------------------------------
+    def unique(
+        self,
+        elements: Iterable[etree._Element],
+        what: str,
+        attribute: str = "id",
+        template: str = "duplicate {what} id '{key}' (first defined at line {line})",
+    ) -> None:
+        """Report every element whose ``attribute`` repeats an earlier one."""
+        seen: dict[str, etree._Element] = {}
+        for element in elements:
+            key = self.str_(element, attribute)
+            if key in seen:
+                line = self.where(seen[key]).line
+                message = template.format(what=what, key=key, line=line)
+                self.problem(element, "duplicate-id", message, attribute)
+            else:
+                seen[key] = element
+
+    def polygon(self, element: etree._Element, pid: str) -> Polygon:
+        points = tuple(
+            (self.num(p, "x"), self.num(p, "y")) for p in self.children(element, "point")
+        )
+        reason = polygon_problem(points)
+        if reason:
+            self.problem(element, "invalid-polygon", f"polygon '{pid}': {reason}")
+        return Polygon(pid, points)
+
+    def circle(self, element: etree._Element, cid: str) -> Circle:
+        return Circle(
+            cid, self.num(element, "x"), self.num(element, "y"), self.num(element, "radius")
+        )
+
+    def shape(self, element: etree._Element, sid: str) -> Shape:
+        if local_name(element) == "circle":
+            return self.circle(element, sid)
+        return self.polygon(element, sid)
+
+    def pose(self, element: etree._Element) -> Pose2:
+        return Pose2(
+            self.num(element, "x"), self.num(element, "y"), self.angle(element, "heading-deg")
+        )
+
+
+def open_validated(
+    path: Path, kind: str, namespace: str, xsd: Path, sink: ProblemSink
+) -> XmlDocument | None:
+    """Parse, check the root element ``kind`` in ``namespace``, and validate against ``xsd``."""
+    doc = parse_xml(path, sink)
+    if doc is None:
+        return None
+    root = doc.root
+    qname = etree.QName(root)
+    expected_ns = namespace
+    if qname.localname != kind or qname.namespace != expected_ns:
+        line, column = doc.locate(root)
+        found = f"<{qname.localname}>" + (
+            f" in namespace '{qname.namespace}'" if qname.namespace else " with no namespace"
+        )
+        sink.add(
+            "wrong-root",
+            f"expected <{kind}> in namespace '{expected_ns}', found {found}",
+            line,
+            column,
+        )
+        return None
+    if not validate_against(doc, xsd, sink):
+        return None
+    return doc
