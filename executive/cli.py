@@ -14,9 +14,10 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from executive import __version__
-from executive.core.loader import check_file, detect_kind, load_aircraft, load_mission
+from executive.core.loader import check_file, load_aircraft, load_mission, root_name
 from executive.core.problems import InvalidInputError, Problem
 from executive.core.resources import missions_dir, shipped_mission_files
+from sim2d.scenario import check_scenario, load_scenario
 
 EXIT_OK = 0
 EXIT_FAILED = 1
@@ -43,7 +44,22 @@ def _source_line(problem: Problem) -> str | None:
     return f"    | {text}{caret.replace(chr(10) + '      ', chr(10) + '    | ', 1)}"
 
 
-def _describe(path: Path, kind: str | None) -> str:
+def check_any(path: Path, library: Path | None = None) -> list[Problem]:
+    """Every problem of an aircraft, mission or scenario file; never raises."""
+    if root_name(path) == "scenario":
+        return check_scenario(path, library)
+    return check_file(path, library)
+
+
+def _describe(path: Path) -> str:
+    kind = root_name(path)
+    if kind == "scenario":
+        scenario = load_scenario(path)
+        return (
+            f"scenario '{scenario.id}' for mission '{scenario.mission.id}': "
+            f"{len(scenario.obstacles)} obstacles, {len(scenario.faults)} faults, "
+            f"seed {scenario.seed}"
+        )
     if kind == "mission":
         mission = load_mission(path)
         return (
@@ -67,9 +83,8 @@ def cmd_validate(args: argparse.Namespace) -> int:
             print(f"validating the shipped mission library in {missions_dir()}")
     results = []
     for path in files:
-        problems = check_file(path, args.library)
-        kind = detect_kind(path) if not problems else None
-        summary = _describe(path, kind) if not problems else None
+        problems = check_any(path, args.library)
+        summary = _describe(path) if not problems else None
         results.append((path, problems, summary))
 
     all_valid = all(not problems for _, problems, _ in results)
@@ -109,6 +124,19 @@ def cmd_validate(args: argparse.Namespace) -> int:
     return EXIT_OK if all_valid else EXIT_BAD_INPUT
 
 
+def cmd_sim_view(args: argparse.Namespace) -> int:
+    from sim2d.robot import SimRobot
+    from sim2d.view import render_world
+
+    scenario = load_scenario(args.scenario)
+    robot = SimRobot(scenario)
+    if args.at > 0:
+        robot.advance(args.at)
+    out = render_world(robot, args.out)
+    print(f"wrote {out}")
+    return EXIT_OK
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="walkaround",
@@ -119,12 +147,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     validate = sub.add_parser(
         "validate",
-        help="check aircraft and mission files; exit 0 if all are valid, 2 otherwise",
-        description="Check aircraft and mission XML files: well-formedness, schema and "
+        help="check aircraft, mission and scenario files; exit 0 if all are valid, 2 otherwise",
+        description="Check aircraft, mission and scenario XML files: well-formedness, schema and "
         "semantics (references, radii, clearances, camera visibility). Every problem is "
         "reported with file:line:column. Without FILE, checks the shipped mission library.",
     )
-    validate.add_argument("files", nargs="*", metavar="FILE", help="aircraft or mission XML")
+    validate.add_argument(
+        "files", nargs="*", metavar="FILE", help="aircraft, mission or scenario XML"
+    )
     validate.add_argument("--json", action="store_true", help="machine-readable report on stdout")
     validate.add_argument(
         "--library",
@@ -134,6 +164,19 @@ def build_parser() -> argparse.ArgumentParser:
         "(default: the mission file's grandparent directory)",
     )
     validate.set_defaults(handler=cmd_validate)
+
+    view = sub.add_parser(
+        "sim-view",
+        help="draw a scenario's world (aircraft, zones, obstacles, robot, a scan, cameras)",
+        description="Top view of a sim2d scenario at its start (or after --at seconds with "
+        "the robot standing still): the aircraft at its true parking pose, forbidden zones, "
+        "the route and checkpoints, obstacles and their paths, the robot, one scan of each "
+        "laser and the cameras' fields of view.",
+    )
+    view.add_argument("scenario", type=Path, metavar="SCENARIO", help="scenario XML")
+    view.add_argument("--out", type=Path, default=Path("world.png"), help="image (.png/.svg)")
+    view.add_argument("--at", type=float, default=0.0, help="simulated seconds to wait first")
+    view.set_defaults(handler=cmd_sim_view)
     return parser
 
 

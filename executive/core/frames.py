@@ -210,15 +210,28 @@ _CAMERA_IN_PTU = np.array(
 )
 
 
-def robot_from_camera(mount: ArrayLike, mount_yaw: float, pan: float, tilt: float) -> Transform3:
+def robot_from_camera(
+    mount: ArrayLike, mount_yaw: float, pan: float, tilt: float, lateral: float = 0.0
+) -> Transform3:
     """3D transform R <- C for a camera on a pan-tilt unit.
 
     The unit sits at ``mount`` (x, y, z in R) facing ``mount_yaw``; pan turns about +z_R
     (positive left), tilt raises the optical axis (positive up). At pan = tilt = 0 the
     optical axis z_C points along the mount direction, x_C to the right, y_C down.
+    ``lateral`` offsets the camera along the unit's left axis, which turns with pan (the
+    two cameras of a stereo pair sit at +/- baseline / 2); tilt does not move it.
     """
-    rotation = rot_z(mount_yaw + pan) @ rot_y(-tilt) @ _CAMERA_IN_PTU
-    return Transform3(rotation, np.asarray(mount, dtype=float).copy())
+    yaw = mount_yaw + pan
+    rotation = rot_z(yaw) @ rot_y(-tilt) @ _CAMERA_IN_PTU
+    position = np.asarray(mount, dtype=float) + lateral * np.array(
+        [-math.sin(yaw), math.cos(yaw), 0.0]
+    )
+    return Transform3(rotation, position)
+
+
+def airport_from_robot(pose_a: Pose2) -> Transform3:
+    """3D transform A <- R for a robot standing on the ground at ``pose_a`` (pose in A)."""
+    return Transform3(rot_z(pose_a.theta), np.array([pose_a.x, pose_a.y, 0.0]))
 
 
 def pan_tilt_towards(

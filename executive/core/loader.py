@@ -61,18 +61,20 @@ def _open(path: Path, kind: str, sink: ProblemSink) -> XmlDocument | None:
     return open_validated(path, kind, KNOWN_ROOTS[kind], schema_path(kind), sink)
 
 
+def root_name(path: Path) -> str | None:
+    """The local name of the file's root element, without validating; None if unreadable."""
+    doc = parse_xml(path, ProblemSink(path))
+    return None if doc is None else etree.QName(doc.root).localname
+
+
 def detect_kind(path: Path) -> str | None:
     """``aircraft`` or ``mission`` from the root element's name, without validating.
 
     The namespace is not looked at here: a ``<mission>`` in the wrong namespace is a
     mission with a mistake, reported by the mission loader.
     """
-    sink = ProblemSink(path)
-    doc = parse_xml(path, sink)
-    if doc is None:
-        return None
-    localname = etree.QName(doc.root).localname
-    return localname if localname in KNOWN_ROOTS else None
+    name = root_name(path)
+    return name if name in KNOWN_ROOTS else None
 
 
 # -- aircraft ------------------------------------------------------------------------------------
@@ -96,9 +98,7 @@ def _build_aircraft(doc: XmlDocument, sink: ProblemSink) -> Aircraft | None:
     dimensions = Dimensions(
         r.num(dim, "length"), r.num(dim, "span"), r.num(dim, "height"), r.num(dim, "fuselage-width")
     )
-    footprint_parent = r.child(root, "footprint")
-    assert footprint_parent is not None
-    footprint_el = [e for e in footprint_parent if isinstance(e.tag, str)]
+    footprint_el = r.elements(r.child(root, "footprint"))
     outline_el = r.children(r.child(root, "outline"), "polygon")
     r.unique([*footprint_el, *outline_el], "shape")
     footprint = tuple(r.shape(e, r.str_(e, "id")) for e in footprint_el)
@@ -300,7 +300,7 @@ def _build_mission(
     zones = []
     for ze in zone_el:
         zid = r.str_(ze, "id")
-        shape_el = next(e for e in ze if isinstance(e.tag, str))
+        shape_el = r.elements(ze)[0]
         zones.append(
             ForbiddenZone(
                 zid,

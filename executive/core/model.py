@@ -187,11 +187,13 @@ class CameraSpec:
 
     @property
     def horizontal_fov(self) -> float:
-        return 2.0 * math.atan(self.width_px * self.pixel_size / (2.0 * self.focal_length))
+        """Of the output image (the same as the sensor's: downscaling keeps the width's)."""
+        return 2.0 * math.atan(self.image_width_px / (2.0 * self.focal_px))
 
     @property
     def vertical_fov(self) -> float:
-        return 2.0 * math.atan(self.height_px * self.pixel_size / (2.0 * self.focal_length))
+        """Of the output image (a downscale to another aspect ratio crops vertically)."""
+        return 2.0 * math.atan(self.image_height_px / (2.0 * self.focal_px))
 
     @property
     def focal_px(self) -> float:

@@ -23,6 +23,10 @@ from executive.core.frames import FloatArray
 _EMPTY: Mapping = MappingProxyType({})
 
 
+def _empty() -> Mapping:
+    return field(default_factory=lambda: _EMPTY)  # type: ignore[return-value]
+
+
 @dataclass(frozen=True, slots=True, eq=False)
 class LaserScan:
     """One sweep of a planar scanner: ``ranges[k]`` along ``angle_min + k * angle_increment``.
@@ -125,9 +129,9 @@ class SensorFrame:
     """
 
     stamp: float
-    scans: Mapping[str, LaserScan] = _EMPTY
-    cameras: Mapping[str, CameraFrame] = _EMPTY
-    pan_tilt: Mapping[str, PanTilt] = _EMPTY
+    scans: Mapping[str, LaserScan] = _empty()
+    cameras: Mapping[str, CameraFrame] = _empty()
+    pan_tilt: Mapping[str, PanTilt] = _empty()
     wheels: WheelSpeeds | None = None
     imu: ImuReading | None = None
     gps: GpsFix | None = None
@@ -151,7 +155,7 @@ class VelocityCommand:
 
     v: float = 0.0
     omega: float = 0.0
-    pan_tilt: Mapping[str, PanTiltRate] = _EMPTY
+    pan_tilt: Mapping[str, PanTiltRate] = _empty()
 
     @staticmethod
     def stop() -> VelocityCommand:

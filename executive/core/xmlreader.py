@@ -63,6 +63,12 @@ class ElementReader:
             return []
         return element.findall(f"{{{self.ns}}}{name}")
 
+    def elements(self, element: etree._Element | None) -> list[etree._Element]:
+        """The child elements of ``element`` (comments skipped); [] for None."""
+        if element is None:
+            return []
+        return [e for e in element if isinstance(e.tag, str)]
+
     def text(self, element: etree._Element | None) -> str:
         if element is None:
             return ""

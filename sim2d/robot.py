@@ -1,0 +1,304 @@
+"""sim2d's implementation of :class:`executive.core.robot.RobotInterface`.
+
+:class:`SimRobot` owns a :class:`~sim2d.world.World` and samples every sensor at its own
+rate on the simulated clock (lasers 40 Hz, cameras 25 Hz as the platform says; wheels
+50 Hz, IMU 100 Hz, GPS as the scenario says), applies the scenario's faults, and keeps the
+latest reading of each for :meth:`read`. The runtime calls :meth:`send` with a command
+and :meth:`advance` to let simulated time pass.
+
+What the robot would see is kept apart from ground truth: :attr:`truth` (poses, contacts)
+is for reports and tests only, and both can be logged as JSONL that is identical, byte
+for byte, for the same scenario and seed.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO
+
+import numpy as np
+from numpy.typing import NDArray
+
+from executive.core.frames import Pose2
+from executive.core.records import (
+    Bumpers,
+    CameraFrame,
+    GpsFix,
+    ImuReading,
+    LaserScan,
+    SensorFrame,
+    VelocityCommand,
+    WheelSpeeds,
+)
+from sim2d.cameras import CameraRig, FeatureCloud, PanTiltUnit, camera_rigs, detect
+from sim2d.raycast import cast_rays
+from sim2d.scenario import FaultKind, Scenario
+from sim2d.sensors import Gps, Imu, LaserSensor, WheelEncoders
+from sim2d.world import Collision, World
+
+WHEEL_RATE_HZ = 50.0
+IMU_RATE_HZ = 100.0
+TRUTH_RATE_HZ = 10.0
+
+
+class _Schedule:
+    """Fires every ``1/rate`` seconds of simulated time, counted in whole periods."""
+
+    def __init__(self, rate_hz: float, name: str) -> None:
+        self.period = 1.0 / rate_hz
+        self.name = name
+        self.count = 0
+
+    def due(self, t: float) -> bool:
+        if t + 1e-9 >= self.count * self.period:
+            self.count += 1
+            return True
+        return False
+
+
+@dataclass
+class GroundTruth:
+    """What really happened, for reports and tests (never for the robot's behaviours)."""
+
+    robot: Pose2
+    collisions: list[Collision] = field(default_factory=list)
+    obstacles: list[tuple[str, float, float, float]] = field(default_factory=list)
+
+
+def _fmt(x: float) -> float:
+    return float(f"{x:.6f}")
+
+
+class SimRobot:
+    """A simulated robot in a scenario; implements ``RobotInterface``."""
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        truth_log: Path | IO[str] | None = None,
+        sensor_log: Path | IO[str] | None = None,
+    ) -> None:
+        self.scenario = scenario
+        seeds = np.random.SeedSequence(scenario.seed).spawn(8)
+        rngs = [np.random.default_rng(s) for s in seeds]
+        self.world = World(scenario, rngs[0])
+        mission = scenario.mission
+        noise = scenario.noise
+        self.lasers = {
+            lid: (
+                LaserSensor(spec, noise.laser_range, rngs[1].spawn(1)[0]),
+                _Schedule(spec.rate_hz, lid),
+            )
+            for lid, spec in mission.platform.lasers.items()
+        }
+        self.units = {cid: PanTiltUnit(spec) for cid, spec in mission.platform.cameras.items()}
+        self.rigs: list[tuple[CameraRig, _Schedule]] = [
+            (rig, _Schedule(rig.spec.rate_hz, rig.id))
+            for rig in camera_rigs(mission.platform.cameras)
+        ]
+        self.cloud = FeatureCloud.from_aircraft(mission.aircraft, self.world.placement)
+        self.camera_rng = rngs[2]
+        self.wheels = WheelEncoders(noise.wheel, rngs[3])
+        self.imu = Imu(noise.imu_rate, noise.imu_bias, rngs[4])
+        self.gps = Gps(
+            scenario.gps, noise.gps, mission.aircraft.outline, self.world.placement, rngs[5]
+        )
+        self.wheel_schedule = _Schedule(WHEEL_RATE_HZ, "wheels")
+        self.imu_schedule = _Schedule(IMU_RATE_HZ, "imu")
+        self.gps_schedule = _Schedule(scenario.gps.rate_hz, "gps")
+        self.truth_schedule = _Schedule(TRUTH_RATE_HZ, "truth")
+
+        self._scans: dict[str, LaserScan] = {}
+        self._cameras: dict[str, CameraFrame] = {}
+        self._wheels: WheelSpeeds | None = None
+        self._imu: ImuReading | None = None
+        self._gps: GpsFix | None = None
+        self._logged_collisions = 0
+        self._opened: list[IO[str]] = []
+        self._truth_out = self._open_log(truth_log)
+        self._sensor_out = self._open_log(sensor_log)
+        self._sample(0.0)
+
+    # -- RobotInterface ---------------------------------------------------------------------------
+    def read(self) -> SensorFrame:
+        t = self.time
+        front, rear = self.world.bumpers()
+        hit = self._fault_targets(FaultKind.BUMPER_HIT, t)
+        return SensorFrame(
+            stamp=t,
+            scans=dict(self._scans),
+            cameras=dict(self._cameras),
+            pan_tilt={uid: unit.reading(t) for uid, unit in self.units.items()},
+            wheels=self._wheels,
+            imu=self._imu,
+            gps=self._gps,
+            bumpers=Bumpers(t, front or "front" in hit, rear or "rear" in hit),
+        )
+
+    def send(self, command: VelocityCommand) -> None:
+        self.world.base.command(command.v, command.omega)
+        for uid, unit in self.units.items():
+            rate = command.pan_tilt.get(uid)
+            unit.command(rate.pan if rate else 0.0, rate.tilt if rate else 0.0)
+
+    # -- simulated time ----------------
+    @property
+    def time(self) -> float:
+        return self.world.time
+
+    def advance(self, duration: float) -> None:
+        """Let ``duration`` seconds of simulated time pass (whole physics steps)."""
+        end = self.world.time + duration - 1e-9
+        while self.world.time < end:
+            self._physics_step()
+
+    def _physics_step(self) -> None:
+        world = self.world
+        t = world.time
+        slip_factor = 1.0
+        for fault in self.scenario.faults:
+            if fault.kind is FaultKind.SLIP_BURST and fault.active(t):
+                slip_factor *= fault.factor
+        bumper_fault = bool(self._fault_targets(FaultKind.BUMPER_HIT, t))
+        world.step(slip_factor, bumper_fault)
+        for unit in self.units.values():
+            unit.step(world.dt)
+        self._sample(world.time)
+
+    def _fault_targets(self, kind: FaultKind, t: float) -> set[str | None]:
+        return {f.target for f in self.scenario.faults if f.kind is kind and f.active(t)}
+
+    # -- sensors ----------------
+    def _sample(self, t: float) -> None:
+        world = self.world
+        pose = world.robot_pose
+        lasers_due = [(sensor, s) for sensor, s in self.lasers.values() if s.due(t)]
+        cameras_due = [rig for rig, s in self.rigs if s.due(t)]
+        if lasers_due or cameras_due:
+            world.refresh_scene()
+        dropped = self._fault_targets(FaultKind.LASER_DROPOUT, t)
+        for sensor, _ in lasers_due:
+            if sensor.spec.id not in dropped:
+                scan = sensor.scan(world.scene, pose, t)
+                self._scans[sensor.spec.id] = scan
+                if self._sensor_out is not None:
+                    self._log_sensor(t, f"laser:{sensor.spec.id}", _digest(scan.ranges))
+        frozen = self._fault_targets(FaultKind.CAMERA_FREEZE, t)
+        for rig in cameras_due:
+            unit = self.units[rig.unit]
+            if rig.id in frozen and rig.id in self._cameras:
+                # A frozen camera keeps publishing its last image with fresh stamps.
+                frame = CameraFrame(t, self._cameras[rig.id].detections)
+            else:
+                frame = detect(
+                    rig,
+                    unit.pan,
+                    unit.tilt,
+                    pose,
+                    self.cloud,
+                    rng=self.camera_rng,
+                    pixel_noise=self.scenario.noise.pixel,
+                    dropout=self.scenario.noise.camera_dropout,
+                    occluded=self._occlusion_test(),
+                    stamp=t,
+                )
+            self._cameras[rig.id] = frame
+            if self._sensor_out is not None:
+                seen = [
+                    (d.feature, d.point, round(d.u, 3), round(d.v, 3)) for d in frame.detections
+                ]
+                self._log_sensor(t, f"camera:{rig.id}", seen)
+        if self.wheel_schedule.due(t):
+            left, right = world.base.wheel_speeds()
+            self._wheels = self.wheels.read(left, right, t)
+            if self._sensor_out is not None:
+                self._log_sensor(t, "wheels", [_fmt(self._wheels.left), _fmt(self._wheels.right)])
+        if self.imu_schedule.due(t):
+            self._imu = self.imu.read(float(world.robot_body.angular_velocity), t)
+            if self._sensor_out is not None:
+                self._log_sensor(t, "imu", _fmt(self._imu.yaw_rate))
+        if self.gps_schedule.due(t):
+            lost = self._fault_targets(FaultKind.GPS_LOSS, t)
+            self._gps = None if lost else self.gps.read(pose, t)
+            fix = self._gps
+            if self._sensor_out is not None:
+                logged = None if fix is None else [_fmt(fix.x), _fmt(fix.y), _fmt(fix.sigma)]
+                self._log_sensor(t, "gps", logged)
+        if self.truth_schedule.due(t):
+            self._log_truth(t)
+
+    def _occlusion_test(self) -> Callable[[NDArray, NDArray], NDArray]:
+        occluders = self.world.occluders
+        heights = self.world.owner_height
+
+        def occluded(origin: NDArray, targets: NDArray) -> NDArray:
+            d = targets[:, :2] - origin[:2]
+            dist2d = np.hypot(d[:, 0], d[:, 1])
+            angles = np.arctan2(d[:, 1], d[:, 0])
+            hit, owner = cast_rays(occluders, (float(origin[0]), float(origin[1])), angles, dist2d)
+            blocked = np.isfinite(hit) & (owner >= 0)
+            if not blocked.any():
+                return blocked
+            # The line of sight passes the obstacle at height z(hit); it is blocked only
+            # where the obstacle is taller than that.
+            frac = np.where(dist2d > 0, hit / np.maximum(dist2d, 1e-9), 0.0)
+            z_at_hit = origin[2] + (targets[:, 2] - origin[2]) * np.where(blocked, frac, 0.0)
+            return blocked & (z_at_hit < heights[np.maximum(owner, 0)])
+
+        return occluded
+
+    # -- ground truth and logs ----------------
+    @property
+    def truth(self) -> GroundTruth:
+        return GroundTruth(
+            self.world.robot_pose, list(self.world.collisions), self.world.obstacle_poses()
+        )
+
+    def _log_truth(self, t: float) -> None:
+        out = self._truth_out
+        if out is None:
+            return
+        pose = self.world.robot_pose
+        record = {
+            "t": _fmt(t),
+            "robot": [_fmt(pose.x), _fmt(pose.y), _fmt(pose.theta)],
+            "obstacles": {i: [_fmt(x), _fmt(y)] for i, x, y, _ in self.world.obstacle_poses()},
+        }
+        out.write(json.dumps(record, separators=(",", ":")) + "\n")
+        for c in self.world.collisions[self._logged_collisions :]:
+            event = {
+                "t": _fmt(c.time),
+                "event": "collision",
+                "with": c.other,
+                "at": [_fmt(c.x), _fmt(c.y)],
+            }
+            out.write(json.dumps(event, separators=(",", ":")) + "\n")
+        self._logged_collisions = len(self.world.collisions)
+
+    def _log_sensor(self, t: float, name: str, value: object) -> None:
+        assert self._sensor_out is not None
+        self._sensor_out.write(json.dumps([_fmt(t), name, value], separators=(",", ":")) + "\n")
+
+    def _open_log(self, target: Path | IO[str] | None) -> IO[str] | None:
+        if target is None or not isinstance(target, Path | str):
+            return target
+        handle = Path(target).open("w", encoding="utf-8")  # noqa: SIM115 (closed in close())
+        self._opened.append(handle)
+        return handle
+
+    def close(self) -> None:
+        """Flush the logs; close the ones this robot opened."""
+        for out in (self._truth_out, self._sensor_out):
+            if out is not None:
+                out.flush()
+        for handle in self._opened:
+            handle.close()
+        self._opened.clear()
+
+
+def _digest(values: np.ndarray) -> str:
+    return hashlib.sha1(np.round(values, 6).tobytes()).hexdigest()[:16]

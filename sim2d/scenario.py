@@ -1,0 +1,460 @@
+"""Scenarios: how sim2d stages a mission (docs/scenario-format.md).
+
+A :class:`Scenario` holds the validated mission plus the true parking offset, the robot's
+start, obstacles and their motions, noise and slip levels, GPS conditions, faults on a
+timeline and the seed. :func:`load_scenario` reads one with the same hardened front end
+as missions and reports every problem with ``file:line:column``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass
+from enum import StrEnum
+from pathlib import Path
+
+from lxml import etree
+from shapely.geometry import Point
+
+from executive.core.frames import AircraftPlacement, Pose2
+from executive.core.geometry import to_shapely
+from executive.core.loader import load_mission
+from executive.core.model import Mission, Polygon
+from executive.core.problems import InvalidInputError, Problem, ProblemSink
+from executive.core.resources import schema_path
+from executive.core.xmlreader import ElementReader, display_path, local_name, open_validated
+from executive.core.xmlsafe import XmlDocument
+from sim2d.cameras import camera_rigs
+
+SCENARIO_NS = "urn:walkaround:scenario:1"
+
+
+class ObstacleKind(StrEnum):
+    VEHICLE = "vehicle"
+    CONE = "cone"
+    EQUIPMENT = "equipment"
+    PERSON = "person"
+    TROLLEY = "trolley"
+    OTHER = "other"
+
+
+class FaultKind(StrEnum):
+    LASER_DROPOUT = "laser-dropout"
+    CAMERA_FREEZE = "camera-freeze"
+    GPS_LOSS = "gps-loss"
+    SLIP_BURST = "slip-burst"
+    BUMPER_HIT = "bumper-hit"
+
+
+@dataclass(frozen=True, slots=True)
+class NoiseLevels:
+    """1-sigma noise: laser range (m), pixels, camera dropout probability, wheel speed
+    (m/s), IMU yaw-rate noise and bias (rad/s), GPS (m)."""
+
+    laser_range: float = 0.01
+    pixel: float = 0.5
+    camera_dropout: float = 0.02
+    wheel: float = 0.01
+    imu_rate: float = 0.002
+    imu_bias: float = 0.002
+    gps: float = 0.03
+
+
+@dataclass(frozen=True, slots=True)
+class SlipLevels:
+    """Skid-steer slip: fraction of wheel speed lost straight ahead, fraction of the
+    wheels' yaw rate lost in turns, and the lateral slip gain (m/s per (m/s * rad/s))."""
+
+    longitudinal: float = 0.02
+    turn: float = 0.2
+    lateral: float = 0.05
+
+    def scaled(self, factor: float) -> SlipLevels:
+        return SlipLevels(
+            min(self.longitudinal * factor, 0.9),
+            min(self.turn * factor, 0.9),
+            self.lateral * factor,
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class GpsConditions:
+    denied: bool = False
+    rate_hz: float = 5.0
+    shadow_margin: float = 1.0
+
+
+@dataclass(frozen=True, slots=True)
+class Body:
+    """An obstacle's shape: a disc of ``radius``, or a ``length`` x ``width`` box."""
+
+    radius: float | None = None
+    length: float = 0.0
+    width: float = 0.0
+
+    @property
+    def is_circle(self) -> bool:
+        return self.radius is not None
+
+    @property
+    def bounding_radius(self) -> float:
+        if self.radius is not None:
+            return self.radius
+        return math.hypot(self.length, self.width) / 2.0
+
+    def polygon(self, pose: Pose2) -> Polygon:
+        """The box's corners at ``pose`` (counter-clockwise)."""
+        hl, hw = self.length / 2.0, self.width / 2.0
+        corners = pose.apply([(hl, hw), (-hl, hw), (-hl, -hw), (hl, -hw)])
+        return Polygon("", tuple((float(x), float(y)) for x, y in corners))
+
+
+@dataclass(frozen=True, slots=True)
+class StaticObstacle:
+    id: str
+    kind: ObstacleKind
+    pose: Pose2
+    body: Body
+    height: float
+
+
+@dataclass(frozen=True, slots=True)
+class PathMover:
+    """Moves along ``waypoints`` at ``speed`` from ``start_time``, or once the robot is
+    within ``trigger_radius`` of the first waypoint; ``loop`` goes round for ever."""
+
+    id: str
+    kind: ObstacleKind
+    body: Body
+    height: float
+    speed: float
+    waypoints: tuple[tuple[float, float], ...]
+    start_time: float = 0.0
+    trigger_radius: float | None = None
+    loop: bool = False
+
+
+@dataclass(frozen=True, slots=True)
+class LoiteringGroup:
+    """``count`` people walking at random inside a circle."""
+
+    id: str
+    center: tuple[float, float]
+    radius: float
+    count: int
+    speed: float
+    person_radius: float
+    height: float
+
+
+@dataclass(frozen=True, slots=True)
+class Chaser:
+    """The adversarial trolley: steers towards the robot at ``speed`` once triggered."""
+
+    id: str
+    kind: ObstacleKind
+    start: tuple[float, float]
+    body: Body
+    height: float
+    speed: float
+    trigger_radius: float | None = None
+
+
+Obstacle = StaticObstacle | PathMover | LoiteringGroup | Chaser
+
+
+@dataclass(frozen=True, slots=True)
+class Fault:
+    """A fault active during [at, at + duration). ``target`` names the laser, camera or
+    bumper; ``factor`` multiplies the slip levels of a slip burst."""
+
+    kind: FaultKind
+    at: float
+    duration: float
+    target: str | None = None
+    factor: float = 1.0
+
+    def active(self, t: float) -> bool:
+        return self.at <= t < self.at + self.duration
+
+
+@dataclass(frozen=True, slots=True)
+class Scenario:
+    id: str
+    mission: Mission
+    seed: int
+    duration: float
+    parking_offset: Pose2
+    start: Pose2
+    physics_rate: float
+    noise: NoiseLevels
+    slip: SlipLevels
+    gps: GpsConditions
+    obstacles: tuple[Obstacle, ...] = ()
+    faults: tuple[Fault, ...] = ()
+    description: str = ""
+    source: str = ""
+
+    def true_placement(self) -> AircraftPlacement:
+        """Where the aircraft really stands: the mission's nominal pose plus the offset."""
+        nominal = self.mission.nominal_placement()
+        off = self.parking_offset
+        return AircraftPlacement(
+            nominal.x + off.x,
+            nominal.y + off.y,
+            nominal.heading + off.theta,
+            nominal.origin_height,
+        )
+
+
+def default_library_root(scenario_path: Path) -> Path:
+    """``<library>/<type>/scenarios/<name>.xml`` -> ``<library>``."""
+    return scenario_path.resolve().parent.parent.parent
+
+
+def load_scenario(path: Path | str, library_root: Path | str | None = None) -> Scenario:
+    """Load and check a scenario and its mission; raise InvalidInputError on any problem."""
+    path = Path(path)
+    root_dir = Path(library_root) if library_root is not None else default_library_root(path)
+    sink = ProblemSink(display_path(path))
+    doc = open_validated(path, "scenario", SCENARIO_NS, schema_path("scenario"), sink)
+    scenario = _build(doc, sink, path, root_dir) if doc is not None else None
+    sink.raise_if_any()
+    assert scenario is not None
+    return scenario
+
+
+def check_scenario(path: Path | str, library_root: Path | str | None = None) -> list[Problem]:
+    """Every problem of a scenario file (empty when valid); never raises."""
+    try:
+        load_scenario(path, library_root)
+    except InvalidInputError as exc:
+        return list(exc.problems)
+    return []
+
+
+# -- building ---------------------------------------------------------------------------------
+def _resolve_mission(
+    r: ElementReader, path: Path, root_dir: Path
+) -> tuple[Mission | None, list[Problem]]:
+    root = r.doc.root
+    ref = r.str_(root, "mission")
+    rel = Path(ref)
+    library = root_dir.resolve()
+    target = (path.resolve().parent / rel).resolve()
+    if rel.is_absolute() or ref.startswith(("/", "\\")):
+        r.problem(root, "mission-path", f"mission path '{ref}' must be relative", "mission")
+        return None, []
+    if not target.is_relative_to(library):
+        r.problem(
+            root,
+            "mission-path",
+            f"mission path '{ref}' leads outside the mission library root "
+            f"'{display_path(library)}'",
+            "mission",
+        )
+        return None, []
+    if not target.is_file():
+        r.problem(root, "mission-path", f"mission file '{ref}' does not exist", "mission")
+        return None, []
+    try:
+        return load_mission(target, library), []
+    except InvalidInputError as exc:
+        r.problem(
+            root,
+            "mission-invalid",
+            f"mission file '{ref}' has {len(exc.problems)} problem(s), listed with its name",
+            "mission",
+        )
+        return None, list(exc.problems)
+
+
+def _body(r: ElementReader, el: etree._Element, label: str) -> Body:
+    radius = r.opt_num(el, "radius")
+    length, width = r.opt_num(el, "length"), r.opt_num(el, "width")
+    if radius is not None and length is None and width is None:
+        return Body(radius=radius)
+    if radius is None and length is not None and width is not None:
+        return Body(length=length, width=width)
+    r.problem(
+        el,
+        "obstacle-shape",
+        f"{label}: give either 'radius' (a disc) or both 'length' and 'width' (a box)",
+    )
+    return Body(radius=0.3)
+
+
+def _obstacle(r: ElementReader, el: etree._Element) -> Obstacle:
+    oid = r.str_(el, "id")
+    tag = local_name(el)
+    height = r.num(el, "height")
+    if tag == "box":
+        body = Body(length=r.num(el, "length"), width=r.num(el, "width"))
+        return StaticObstacle(oid, ObstacleKind(r.str_(el, "kind")), r.pose(el), body, height)
+    if tag == "circle":
+        body = Body(radius=r.num(el, "radius"))
+        pose = Pose2(r.num(el, "x"), r.num(el, "y"), 0.0)
+        return StaticObstacle(oid, ObstacleKind(r.str_(el, "kind")), pose, body, height)
+    if tag == "path":
+        return PathMover(
+            id=oid,
+            kind=ObstacleKind(r.str_(el, "kind")),
+            body=_body(r, el, f"path '{oid}'"),
+            height=height,
+            speed=r.num(el, "speed"),
+            waypoints=tuple((r.num(w, "x"), r.num(w, "y")) for w in r.children(el, "waypoint")),
+            start_time=r.num(el, "start-time", 0.0),
+            trigger_radius=r.opt_num(el, "trigger-radius"),
+            loop=r.str_(el, "loop") in ("true", "1"),
+        )
+    if tag == "group":
+        return LoiteringGroup(
+            id=oid,
+            center=(r.num(el, "x"), r.num(el, "y")),
+            radius=r.num(el, "radius"),
+            count=int(r.num(el, "count")),
+            speed=r.num(el, "speed"),
+            person_radius=r.num(el, "person-radius"),
+            height=height,
+        )
+    return Chaser(
+        id=oid,
+        kind=ObstacleKind(r.str_(el, "kind")),
+        start=(r.num(el, "x"), r.num(el, "y")),
+        body=_body(r, el, f"chaser '{oid}'"),
+        height=height,
+        speed=r.num(el, "speed"),
+        trigger_radius=r.opt_num(el, "trigger-radius"),
+    )
+
+
+def _fault(r: ElementReader, el: etree._Element) -> Fault:
+    kind = FaultKind(local_name(el))
+    target = el.get("laser") or el.get("camera") or el.get("bumper")
+    return Fault(
+        kind=kind,
+        at=r.num(el, "at"),
+        duration=r.num(el, "duration"),
+        target=target.strip() if target else None,
+        factor=r.num(el, "factor", 1.0),
+    )
+
+
+def _attrs(r: ElementReader, el: etree._Element | None, names: Iterable[str]) -> dict[str, float]:
+    if el is None:
+        return {}
+    return {n.replace("-", "_"): r.num(el, n) for n in names if el.get(n) is not None}
+
+
+def _build(doc: XmlDocument, sink: ProblemSink, path: Path, root_dir: Path) -> Scenario | None:
+    r = ElementReader(doc, sink)
+    root = doc.root
+    mission, mission_problems = _resolve_mission(r, path, root_dir)
+    sink.extend(mission_problems)
+
+    offset_el = r.child(root, "parking-offset")
+    offset = (
+        Pose2(r.num(offset_el, "dx"), r.num(offset_el, "dy"), r.angle(offset_el, "dheading-deg"))
+        if offset_el is not None
+        else Pose2(0.0, 0.0, 0.0)
+    )
+    start_el = r.child(root, "start")
+    physics_el = r.child(root, "physics")
+    noise = NoiseLevels(
+        **_attrs(
+            r,
+            r.child(root, "noise"),
+            ("laser-range", "pixel", "camera-dropout", "wheel", "imu-rate", "imu-bias", "gps"),
+        )
+    )
+    slip = SlipLevels(**_attrs(r, r.child(root, "slip"), ("longitudinal", "turn", "lateral")))
+    gps_el = r.child(root, "gps")
+    gps = GpsConditions(
+        denied=gps_el is not None and r.str_(gps_el, "mode") == "denied",
+        **_attrs(r, gps_el, ("rate-hz", "shadow-margin")),
+    )
+
+    obstacle_el = r.elements(r.child(root, "obstacles"))
+    fault_el = r.elements(r.child(root, "faults"))
+    r.unique(obstacle_el, "obstacle")
+    obstacles = tuple(_obstacle(r, e) for e in obstacle_el)
+    faults = tuple(_fault(r, e) for e in fault_el)
+    if mission is None:
+        return None
+
+    start = r.pose(start_el) if start_el is not None else mission.airport.station
+    scenario = Scenario(
+        id=r.str_(root, "id"),
+        mission=mission,
+        seed=int(r.str_(root, "seed")),
+        duration=r.num(root, "duration", 3600.0),
+        parking_offset=offset,
+        start=start,
+        physics_rate=r.num(physics_el, "rate-hz", 100.0) if physics_el is not None else 100.0,
+        noise=noise,
+        slip=slip,
+        gps=gps,
+        obstacles=obstacles,
+        faults=faults,
+        description=r.text(r.child(root, "description")),
+        source=sink.file,
+    )
+    _check_references(r, scenario, fault_el)
+    _check_overlaps(r, scenario, obstacle_el)
+    return None if sink else scenario
+
+
+def _check_references(r: ElementReader, scenario: Scenario, fault_el: list) -> None:
+    lasers = scenario.mission.platform.lasers
+    cameras = [rig.id for rig in camera_rigs(scenario.mission.platform.cameras)]
+    for el, fault in zip(fault_el, scenario.faults, strict=True):
+        if fault.kind is FaultKind.LASER_DROPOUT and fault.target not in lasers:
+            known = ", ".join(lasers) or "none"
+            r.problem(
+                el,
+                "unknown-reference",
+                f"laser '{fault.target}' is not a platform laser (known: {known})",
+                "laser",
+            )
+        if fault.kind is FaultKind.CAMERA_FREEZE and fault.target not in cameras:
+            r.problem(
+                el,
+                "unknown-reference",
+                f"camera '{fault.target}' is not a camera of the platform "
+                f"(known: {', '.join(cameras)})",
+                "camera",
+            )
+
+
+def _check_overlaps(r: ElementReader, scenario: Scenario, obstacle_el: list) -> None:
+    """Static obstacles must not overlap the aircraft footprint or the robot's start."""
+    placement = scenario.true_placement()
+    footprint = []
+    for shape in scenario.mission.aircraft.footprint:
+        pts = placement.to_airport_xy(to_shapely(shape).exterior.coords)
+        footprint.append((shape.id, Polygon(shape.id, tuple(map(tuple, pts)))))
+    start = scenario.start
+    half_diag = math.hypot(scenario.mission.platform.length, scenario.mission.platform.width) / 2
+    robot = Point(start.x, start.y).buffer(half_diag)
+    for el, obstacle in zip(obstacle_el, scenario.obstacles, strict=True):
+        if not isinstance(obstacle, StaticObstacle):
+            continue
+        body = obstacle.body
+        geom = (
+            Point(obstacle.pose.x, obstacle.pose.y).buffer(body.radius)
+            if body.radius is not None
+            else to_shapely(body.polygon(obstacle.pose))
+        )
+        for shape_id, poly in footprint:
+            if geom.intersects(to_shapely(poly)):
+                r.problem(
+                    el,
+                    "obstacle-overlap",
+                    f"obstacle '{obstacle.id}' overlaps the aircraft footprint '{shape_id}' "
+                    "(at the true parking pose)",
+                )
+        if geom.intersects(robot):
+            r.problem(
+                el, "obstacle-overlap", f"obstacle '{obstacle.id}' overlaps the robot's start"
+            )
