@@ -35,9 +35,8 @@ from executive.core.records import (
     WheelSpeeds,
 )
 from sim2d.cameras import CameraRig, FeatureCloud, PanTiltUnit, camera_rigs, detect
-from sim2d.raycast import cast_rays
 from sim2d.scenario import FaultKind, Scenario
-from sim2d.sensors import Gps, Imu, LaserSensor, WheelEncoders
+from sim2d.sensors import Gps, Imu, LaserSensor, WheelEncoders, sight_lines_blocked
 from sim2d.world import Collision, World
 
 WHEEL_RATE_HZ = 50.0
@@ -231,23 +230,15 @@ class SimRobot:
         if self.truth_schedule.due(t):
             self._log_truth(t)
 
-    def _occlusion_test(self) -> Callable[[NDArray, NDArray], NDArray]:
+    def _occlusion_test(self) -> Callable[[NDArray, NDArray], NDArray] | None:
+        """The camera occlusion callback: obstacles (not the aircraft) taller than the line."""
         occluders = self.world.occluders
+        if occluders.n_segments == 0 and occluders.n_circles == 0:
+            return None
         heights = self.world.owner_height
 
         def occluded(origin: NDArray, targets: NDArray) -> NDArray:
-            d = targets[:, :2] - origin[:2]
-            dist2d = np.hypot(d[:, 0], d[:, 1])
-            angles = np.arctan2(d[:, 1], d[:, 0])
-            hit, owner = cast_rays(occluders, (float(origin[0]), float(origin[1])), angles, dist2d)
-            blocked = np.isfinite(hit) & (owner >= 0)
-            if not blocked.any():
-                return blocked
-            # The line of sight passes the obstacle at height z(hit); it is blocked only
-            # where the obstacle is taller than that.
-            frac = np.where(dist2d > 0, hit / np.maximum(dist2d, 1e-9), 0.0)
-            z_at_hit = origin[2] + (targets[:, 2] - origin[2]) * np.where(blocked, frac, 0.0)
-            return blocked & (z_at_hit < heights[np.maximum(owner, 0)])
+            return sight_lines_blocked(occluders, heights, origin, targets)
 
         return occluded
 

@@ -375,6 +375,23 @@ def test_non_convex_polygon_from_inside_sees_only_front_faces():
     assert got[0] == pytest.approx(4.5, abs=EXACT)  # the inner face of the right arm
 
 
+@pytest.mark.filterwarnings("error")
+def test_degenerate_shapes_are_ignored_quietly():
+    wall = Scene([(10.0, -20.0, 10.0, 20.0)])
+    alone = scan(wall)
+    degenerate = [
+        Scene([(0.0, 0.0, 0.0, 0.0)]),  # zero length, at the sensor
+        Scene([(3.0, 1.0, 3.0, 1.0)]),  # zero length, elsewhere
+        Scene([(0.0, 0.0, 4.0, 2.0)]),  # starts at the sensor
+        Scene([(1e-300, 0.0, 0.0, 1e-300)]),  # tiny, around the sensor
+        Scene(circles=[(0.0, 0.0, 0.5)]),  # centred on the sensor
+    ]
+    for extra in degenerate:
+        np.testing.assert_array_equal(scan(Scene.concat([wall, extra])), alone)
+        dist, _ = cast_rays(Scene.concat([wall, extra]), (0, 0), beam_angles(), np.inf)
+        np.testing.assert_allclose(np.minimum(dist, RMAX), alone, rtol=0, atol=EXACT)
+
+
 # -- API --------------------------------------------------------------------------------------
 def test_from_polygon_orientation_and_validation():
     ring = [(2, -1), (4, -1), (4, 1), (2, 1)]
