@@ -23,7 +23,13 @@ from executive.core.loader import load_mission
 from executive.core.model import Mission, Polygon
 from executive.core.problems import InvalidInputError, Problem, ProblemSink
 from executive.core.resources import schema_path
-from executive.core.xmlreader import ElementReader, display_path, local_name, open_validated
+from executive.core.xmlreader import (
+    ElementReader,
+    display_path,
+    load_reference,
+    local_name,
+    open_validated,
+)
 from executive.core.xmlsafe import XmlDocument
 from sim2d.cameras import camera_rigs
 
@@ -235,41 +241,6 @@ def check_scenario(path: Path | str, library_root: Path | str | None = None) -> 
 
 
 # -- building ---------------------------------------------------------------------------------
-def _resolve_mission(
-    r: ElementReader, path: Path, root_dir: Path
-) -> tuple[Mission | None, list[Problem]]:
-    root = r.doc.root
-    ref = r.str_(root, "mission")
-    rel = Path(ref)
-    library = root_dir.resolve()
-    target = (path.resolve().parent / rel).resolve()
-    if rel.is_absolute() or ref.startswith(("/", "\\")):
-        r.problem(root, "mission-path", f"mission path '{ref}' must be relative", "mission")
-        return None, []
-    if not target.is_relative_to(library):
-        r.problem(
-            root,
-            "mission-path",
-            f"mission path '{ref}' leads outside the mission library root "
-            f"'{display_path(library)}'",
-            "mission",
-        )
-        return None, []
-    if not target.is_file():
-        r.problem(root, "mission-path", f"mission file '{ref}' does not exist", "mission")
-        return None, []
-    try:
-        return load_mission(target, library), []
-    except InvalidInputError as exc:
-        r.problem(
-            root,
-            "mission-invalid",
-            f"mission file '{ref}' has {len(exc.problems)} problem(s), listed with its name",
-            "mission",
-        )
-        return None, list(exc.problems)
-
-
 def _body(r: ElementReader, el: etree._Element, label: str) -> Body:
     radius = r.opt_num(el, "radius")
     length, width = r.opt_num(el, "length"), r.opt_num(el, "width")
@@ -350,7 +321,9 @@ def _attrs(r: ElementReader, el: etree._Element | None, names: Iterable[str]) ->
 def _build(doc: XmlDocument, sink: ProblemSink, path: Path, root_dir: Path) -> Scenario | None:
     r = ElementReader(doc, sink)
     root = doc.root
-    mission, mission_problems = _resolve_mission(r, path, root_dir)
+    mission, mission_problems = load_reference(
+        r, "mission", path, root_dir, lambda target: load_mission(target, root_dir), "scenario"
+    )
     sink.extend(mission_problems)
 
     offset_el = r.child(root, "parking-offset")

@@ -153,7 +153,7 @@ def sight_lines_blocked(
         a = seg[:, :2] - o  # (S, 2)
         e = seg[:, 2:] - seg[:, :2]
         denom = d[:, None, 0] * e[None, :, 1] - d[:, None, 1] * e[None, :, 0]  # (M, S)
-        with np.errstate(divide="ignore", invalid="ignore"):
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # parallel: t = inf
             t = (a[None, :, 0] * e[None, :, 1] - a[None, :, 1] * e[None, :, 0]) / denom
             u = (a[None, :, 0] * d[:, None, 1] - a[None, :, 1] * d[:, None, 0]) / denom
         crosses = (t > 0.0) & (t < 1.0) & (u >= 0.0) & (u <= 1.0)

@@ -43,7 +43,12 @@ from executive.core.model import (
 )
 from executive.core.problems import InvalidInputError, Problem, ProblemSink
 from executive.core.resources import schema_path
-from executive.core.xmlreader import ElementReader, display_path, open_validated
+from executive.core.xmlreader import (
+    ElementReader,
+    display_path,
+    load_reference,
+    open_validated,
+)
 from executive.core.xmlsafe import XmlDocument, parse_xml
 
 AIRCRAFT_NS = "urn:walkaround:aircraft:1"
@@ -201,53 +206,14 @@ def load_mission(path: Path | str, library_root: Path | str | None = None) -> Mi
     return mission
 
 
-def _resolve_aircraft(
-    r: ElementReader, mission_path: Path, root_dir: Path
-) -> tuple[Aircraft | None, list[Problem]]:
-    root = r.doc.root
-    ref = r.str_(root, "aircraft")
-    rel = Path(ref)
-    if rel.is_absolute() or ref.startswith(("/", "\\")) or ":" in ref.split("/")[0]:
-        r.problem(
-            root,
-            "aircraft-path",
-            f"aircraft path '{ref}' must be relative to the mission file",
-            "aircraft",
-        )
-        return None, []
-    library = root_dir.resolve()
-    target = (mission_path.resolve().parent / rel).resolve()
-    if not target.is_relative_to(library):
-        r.problem(
-            root,
-            "aircraft-path",
-            f"aircraft path '{ref}' leads outside the mission library root "
-            f"'{display_path(library)}'",
-            "aircraft",
-        )
-        return None, []
-    if not target.is_file():
-        what = "is a directory, not a file" if target.is_dir() else "does not exist"
-        r.problem(root, "aircraft-path", f"aircraft file '{ref}' {what}", "aircraft")
-        return None, []
-    try:
-        return load_aircraft(target), []
-    except InvalidInputError as exc:
-        r.problem(
-            root,
-            "aircraft-invalid",
-            f"aircraft file '{ref}' has {len(exc.problems)} problem(s), listed with its name",
-            "aircraft",
-        )
-        return None, list(exc.problems)
-
-
 def _build_mission(
     doc: XmlDocument, sink: ProblemSink, path: Path, root_dir: Path
 ) -> Mission | None:
     r = ElementReader(doc, sink)
     root = doc.root
-    aircraft, aircraft_problems = _resolve_aircraft(r, path, root_dir)
+    aircraft, aircraft_problems = load_reference(
+        r, "aircraft", path, root_dir, load_aircraft, "mission"
+    )
     sink.extend(aircraft_problems)
 
     if aircraft is not None and r.str_(root, "aircraft-type") != aircraft.type:

@@ -17,7 +17,7 @@ from lxml import etree
 from executive.core.frames import Pose2
 from executive.core.geometry import polygon_problem
 from executive.core.model import Circle, Polygon, Shape
-from executive.core.problems import ProblemSink, SourceLocation
+from executive.core.problems import InvalidInputError, Problem, ProblemSink, SourceLocation
 from executive.core.xmlsafe import XmlDocument, parse_xml, validate_against
 
 E = TypeVar("E")
@@ -174,3 +174,53 @@ def open_validated(
     if not validate_against(doc, xsd, sink):
         return None
     return doc
+
+
+M = TypeVar("M")
+
+
+def load_reference(
+    r: ElementReader,
+    attribute: str,
+    source: Path,
+    library_root: Path,
+    load: Callable[[Path], M],
+    referrer: str,
+) -> tuple[M | None, list[Problem]]:
+    """Load the file named by the root element's ``attribute`` (a path relative to
+    ``source``, a ``referrer`` file such as a mission) with ``load``; it may not leave
+    ``library_root``.
+
+    Returns the model, or None and the referenced file's own problems (a problem is also
+    recorded at the attribute). Codes: ``<attribute>-path`` for where the path leads,
+    ``<attribute>-invalid`` when the file has problems of its own.
+    """
+    root = r.doc.root
+    ref = r.str_(root, attribute)
+    rel = Path(ref)
+
+    def complain(code: str, message: str) -> tuple[None, list[Problem]]:
+        r.problem(root, f"{attribute}-{code}", message, attribute)
+        return None, []
+
+    if rel.is_absolute() or ref.startswith(("/", "\\")) or ":" in ref.split("/")[0]:
+        return complain("path", f"{attribute} path '{ref}' must be relative to the {referrer} file")
+    library = library_root.resolve()
+    target = (source.resolve().parent / rel).resolve()
+    if not target.is_relative_to(library):
+        return complain(
+            "path",
+            f"{attribute} path '{ref}' leads outside the mission library root "
+            f"'{display_path(library)}'",
+        )
+    if not target.is_file():
+        what = "is a directory, not a file" if target.is_dir() else "does not exist"
+        return complain("path", f"{attribute} file '{ref}' {what}")
+    try:
+        return load(target), []
+    except InvalidInputError as exc:
+        complain(
+            "invalid",
+            f"{attribute} file '{ref}' has {len(exc.problems)} problem(s), listed with its name",
+        )
+        return None, list(exc.problems)
