@@ -137,6 +137,116 @@ def cmd_sim_view(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _default_scenario(mission: Path) -> Path:
+    return mission.resolve().parent / "scenarios" / "clear-apron.xml"
+
+
+def cmd_dry_run(args: argparse.Namespace) -> int:
+    import dataclasses
+
+    from executive.compiler import CompileError
+    from executive.dryrun import dry_run
+    from executive.report import write_report
+
+    if not 10.0 <= args.rate <= 50.0:
+        print(f"--rate {args.rate:g}: the executive runs at 10 to 50 Hz", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    mission_path: Path = args.mission
+    if root_name(mission_path) != "mission":
+        problems = check_any(mission_path)
+        for problem in problems or []:
+            print(f"{problem.where}: error: {problem.message} [{problem.code}]", file=sys.stderr)
+        if not problems:
+            print(f"{mission_path}: not a mission file", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    scenario_path = args.scenario or _default_scenario(mission_path)
+    problems = check_file(mission_path) + check_any(scenario_path)
+    if problems:
+        for problem in problems:
+            print(f"{problem.where}: error: {problem.message} [{problem.code}]", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    scenario = load_scenario(scenario_path)
+    if scenario.mission.source != load_mission(mission_path).source:
+        print(
+            f"{scenario_path}: this scenario stages mission '{scenario.mission.id}' "
+            f"({scenario.mission.source}), not {mission_path}",
+            file=sys.stderr,
+        )
+        return EXIT_BAD_INPUT
+    if args.seed is not None:
+        scenario = dataclasses.replace(scenario, seed=args.seed)
+    out: Path = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    journal = out / "journal.jsonl"
+    if args.resume and not journal.exists():
+        print(f"--resume: no journal at {journal}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    try:
+        run = dry_run(
+            scenario,
+            rate_hz=args.rate,
+            journal_path=journal,
+            resume=args.resume,
+            progress_out=sys.stderr if not args.quiet else None,
+        )
+    except CompileError as exc:
+        for problem in exc.problems:
+            print(f"{problem.where}: error: {problem.message} [{problem.code}]", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    write_report(run, out)
+    for warning in run.warnings:
+        print(f"warning: {warning}", file=sys.stderr)
+    reached = sum(c.reached for c in run.checkpoints)
+    worst = max((c.position_error or 0.0 for c in run.checkpoints), default=0.0)
+    print(
+        f"{run.result.outcome}: {run.result.reason}; {reached}/{len(run.checkpoints)} checkpoints "
+        f"(worst {worst * 100:.1f} cm), {len(run.robot.truth.collisions)} collisions, "
+        f"{len(run.breaches)} geofence breaches; {run.robot.time:.0f} s simulated in "
+        f"{run.wall_time:.1f} s; report in {out}"
+    )
+    return EXIT_OK if run.succeeded else EXIT_FAILED
+
+
+def cmd_show(args: argparse.Namespace) -> int:
+    from executive import export
+    from executive.compiler import CompileError, compile_mission
+
+    problems = check_any(args.mission)
+    if problems or root_name(args.mission) != "mission":
+        for problem in problems:
+            print(f"{problem.where}: error: {problem.message} [{problem.code}]", file=sys.stderr)
+        if not problems:
+            print(f"{args.mission}: not a mission file", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    try:
+        compiled = compile_mission(load_mission(args.mission))
+    except CompileError as exc:
+        for problem in exc.problems:
+            print(f"{problem.where}: error: {problem.message} [{problem.code}]", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    root = compiled.root
+    fmt = args.format
+    if fmt in ("png", "svg"):
+        out = args.out or Path(f"{args.mission.stem}.{fmt}")
+        if out.suffix != f".{fmt}":
+            out = out.with_suffix(f".{fmt}")
+        export.render(root, out)
+        print(f"wrote {out}")
+        return EXIT_OK
+    if fmt == "ascii":
+        text = export.to_ascii(root, unicode=args.unicode)
+    elif fmt == "dot":
+        text = export.to_dot(root)
+    else:
+        text = export.to_btcpp(root, keep_running_unselected=args.bt_runnable)
+    if args.out is not None:
+        args.out.write_text(text + ("" if text.endswith("\n") else "\n"), encoding="utf-8")
+        print(f"wrote {args.out}")
+    else:
+        sys.stdout.write(text + ("" if text.endswith("\n") else "\n"))
+    return EXIT_OK
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="walkaround",
@@ -177,6 +287,46 @@ def build_parser() -> argparse.ArgumentParser:
     view.add_argument("--out", type=Path, default=Path("world.png"), help="image (.png/.svg)")
     view.add_argument("--at", type=float, default=0.0, help="simulated seconds to wait first")
     view.set_defaults(handler=cmd_sim_view)
+
+    dry = sub.add_parser(
+        "dry-run",
+        help="run a mission with the executive in the simulator and write a report",
+        description="Compile the mission, run it at a fixed rate against sim2d (the "
+        "mission's clear-apron scenario unless --scenario is given) and write the report "
+        "folder: trajectory.png, timeline.png, metrics.json, events.jsonl, journal.jsonl. "
+        "Exit 0 when the mission succeeded (completed, no collision, no geofence breach), "
+        "1 when it failed, 2 on bad input.",
+    )
+    dry.add_argument("mission", type=Path, metavar="MISSION", help="mission XML")
+    dry.add_argument("--scenario", type=Path, default=None, help="scenario XML")
+    dry.add_argument("--out", type=Path, default=Path("dry-run"), help="report folder")
+    dry.add_argument("--rate", type=float, default=50.0, help="executive rate (Hz)")
+    dry.add_argument("--seed", type=int, default=None, help="override the scenario's seed")
+    dry.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue after the last checkpoint completed in OUT/journal.jsonl",
+    )
+    dry.add_argument("--quiet", action="store_true", help="no live progress line")
+    dry.set_defaults(handler=cmd_dry_run)
+
+    show = sub.add_parser(
+        "show",
+        help="print or draw the behaviour tree a mission compiles into",
+        description="Compile the mission and show its tree: ascii (default), Graphviz dot, "
+        "a png/svg drawing, or BehaviorTree.CPP v4 XML (btcpp) that Groot2 can open.",
+    )
+    show.add_argument("mission", type=Path, metavar="MISSION", help="mission XML")
+    show.add_argument("--format", choices=("ascii", "dot", "png", "svg", "btcpp"), default="ascii")
+    show.add_argument("--out", type=Path, default=None, help="file (default: stdout / MISSION.png)")
+    show.add_argument("--unicode", action="store_true", help="ascii: box-drawing characters")
+    show.add_argument(
+        "--bt-runnable",
+        action="store_true",
+        help="btcpp: keep sensing running under BT.CPP's Parallel semantics (one extra "
+        "KeepRunningUntilFailure node per non-selected child)",
+    )
+    show.set_defaults(handler=cmd_show)
     return parser
 
 

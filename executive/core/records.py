@@ -18,7 +18,7 @@ from types import MappingProxyType
 
 import numpy as np
 
-from executive.core.frames import FloatArray
+from executive.core.frames import FloatArray, Pose2
 
 _EMPTY: Mapping = MappingProxyType({})
 
@@ -168,3 +168,61 @@ class VelocityCommand:
             and self.omega == 0.0
             and all(r.pan == 0.0 and r.tilt == 0.0 for r in self.pan_tilt.values())
         )
+
+
+# -- executive state on the blackboard ------------------------------------------------------------
+@dataclass(frozen=True, slots=True, eq=False)
+class PoseEstimate:
+    """The robot's estimated pose at ``stamp``.
+
+    ``pose_a`` in the airport frame with its 3x3 ``covariance`` (x, y, theta); ``pose_f``
+    the same pose in the aircraft frame, through the executive's current idea of where
+    the aircraft stands; ``confidence`` in [0, 1] summarises the covariance (1: sure).
+    """
+
+    stamp: float
+    pose_a: Pose2
+    covariance: FloatArray
+    pose_f: Pose2
+    confidence: float
+    sources: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Obstacles:
+    """What the lasers see around the robot at ``stamp``.
+
+    ``closest`` is r_c: the distance from the robot's footprint (not its centre) to the
+    nearest laser return, ``inf`` when there is none; ``bearing`` its direction in the
+    robot frame; ``points`` every return of both scanners in the robot frame (N, 2).
+    """
+
+    stamp: float
+    closest: float
+    bearing: float
+    points: FloatArray
+
+
+@dataclass(frozen=True, slots=True)
+class FeatureObservations:
+    """Feature points seen by each camera at ``stamp``: camera id -> detections."""
+
+    stamp: float
+    by_camera: Mapping[str, tuple[Detection, ...]] = _empty()
+
+    def visible(self, feature: str, camera_prefix: str = "") -> bool:
+        return any(
+            d.feature == feature
+            for cam, dets in self.by_camera.items()
+            if cam.startswith(camera_prefix)
+            for d in dets
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class OperatorRequests:
+    """What the operator asks for: reset a latched e-stop, take over, or abort."""
+
+    reset_estop: bool = False
+    take_over: bool = False
+    abort: bool = False

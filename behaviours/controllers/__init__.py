@@ -1,0 +1,1 @@
+"""Action behaviours: each writes one velocity command per tick while it runs."""

@@ -1,0 +1,1 @@
+"""Condition behaviours that select controllers: SUCCESS means "my controller runs"."""

@@ -1,0 +1,151 @@
+"""The guard conditions of the decision layer (thesis seed lines 1453-1542).
+
+Each guard's ``feedback_message`` states the value against its threshold; the runtime
+logs it as the reason of the controller switch it causes.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import py_trees
+
+from behaviours.base import Guard
+from behaviours.keys import OBSTACLES, OPERATOR, POSE, SENSOR_FRAME
+from behaviours.laws.estop import EStopLatch
+from executive.core.frames import Pose2, wrap_angle
+from executive.core.records import Obstacles, OperatorRequests, PoseEstimate, SensorFrame
+
+Status = py_trees.common.Status
+
+
+class EmergencyStop(Guard):
+    """r_c < r_ES or a bumper: latched (released after ``hold`` s clear; a bumper only by
+    an operator reset)."""
+
+    reads = (OBSTACLES, SENSOR_FRAME, OPERATOR)
+
+    def __init__(self, r_es: float, hold: float, name: str = "e-stop?") -> None:
+        super().__init__(name)
+        self.latch = EStopLatch(r_es, hold)
+
+    def update(self) -> Status:
+        obstacles: Obstacles | None = self.read(OBSTACLES)
+        frame: SensorFrame = self.read(SENSOR_FRAME)
+        operator: OperatorRequests = self.read(OPERATOR, OperatorRequests())
+        r_c = obstacles.closest if obstacles is not None else math.inf
+        latched = self.latch.update(frame.stamp, r_c, frame.bumpers.any, operator.reset_estop)
+        self.feedback_message = self.latch.reason if latched else f"clear (r_c {r_c:.2f} m)"
+        return Status.SUCCESS if latched else Status.FAILURE
+
+
+class ObstacleTrigger(Guard):
+    """r_c < r_OA-trigger engages obstacle avoidance; it disengages once r_c exceeds the
+    trigger by ``release_margin`` (hysteresis, so the avoidance does not flicker)."""
+
+    reads = (OBSTACLES,)
+
+    def __init__(self, r_oa: float, release_margin: float = 0.3, name: str = "obstacle?") -> None:
+        super().__init__(name)
+        self.r_oa = r_oa
+        self.release_margin = release_margin
+        self.engaged = False
+
+    def update(self) -> Status:
+        obstacles: Obstacles | None = self.read(OBSTACLES)
+        r_c = obstacles.closest if obstacles is not None else math.inf
+        if self.engaged:
+            self.engaged = r_c < self.r_oa + self.release_margin
+        else:
+            self.engaged = r_c < self.r_oa
+        self.feedback_message = f"r_c {r_c:.2f} m vs r_OA {self.r_oa:.2f} m"
+        return Status.SUCCESS if self.engaged else Status.FAILURE
+
+
+class NotTrapped(Guard):
+    """FAILURE once the robot has made no progress towards its goal for ``period`` s.
+
+    Progress is a decrease of the distance to the goal by at least ``min_progress`` m
+    (or the goal reached). Placed in front of a navigation, its FAILURE fails the
+    navigation with the reason in its feedback.
+    """
+
+    reads = (POSE,)
+
+    def __init__(
+        self,
+        goal: Callable[[], Pose2],
+        period: float,
+        min_progress: float = 0.25,
+        name: str = "not trapped?",
+    ) -> None:
+        super().__init__(name)
+        self.goal = goal
+        self.period = period
+        self.min_progress = min_progress
+        self._best: float | None = None
+        self._since = 0.0
+
+    def initialise(self) -> None:
+        self._best = None
+
+    def update(self) -> Status:
+        pose: PoseEstimate | None = self.read(POSE)
+        if pose is None:
+            return Status.SUCCESS
+        goal = self.goal()
+        d = math.hypot(goal.x - pose.pose_a.x, goal.y - pose.pose_a.y)
+        now = pose.stamp
+        if self._best is None or d < self._best - self.min_progress or d < self.min_progress:
+            self._best, self._since = d, now
+        stuck = now - self._since
+        self.feedback_message = f"no progress for {stuck:.0f} s (limit {self.period:.0f} s)"
+        return Status.FAILURE if stuck > self.period else Status.SUCCESS
+
+
+class Reached(Guard):
+    """The estimated pose is within the goal's position and heading tolerances."""
+
+    reads = (POSE,)
+
+    def __init__(
+        self,
+        goal: Callable[[], Pose2],
+        position_tolerance: float,
+        heading_tolerance: float | None,
+        name: str = "reached?",
+    ) -> None:
+        super().__init__(name)
+        self.goal = goal
+        self.position_tolerance = position_tolerance
+        self.heading_tolerance = heading_tolerance
+
+    def update(self) -> Status:
+        pose: PoseEstimate | None = self.read(POSE)
+        if pose is None:
+            return Status.FAILURE
+        goal = self.goal()
+        d = math.hypot(goal.x - pose.pose_a.x, goal.y - pose.pose_a.y)
+        ok = d <= self.position_tolerance
+        if self.heading_tolerance is not None:
+            e = abs(wrap_angle(goal.theta - pose.pose_a.theta))
+            ok = ok and e <= self.heading_tolerance
+            self.feedback_message = f"{d:.3f} m, {math.degrees(e):.1f} deg to go"
+        else:
+            self.feedback_message = f"{d:.3f} m to go"
+        return Status.SUCCESS if ok else Status.FAILURE
+
+
+class OperatorTakeOver(Guard):
+    """The operator has asked to take over (collaborative mode)."""
+
+    reads = (OPERATOR,)
+
+    def __init__(self, name: str = "operator takes over?") -> None:
+        super().__init__(name)
+
+    def update(self) -> Status:
+        operator: OperatorRequests = self.read(OPERATOR, OperatorRequests())
+        self.feedback_message = "operator request" if operator.take_over else "no request"
+        return Status.SUCCESS if operator.take_over else Status.FAILURE

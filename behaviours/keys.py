@@ -1,0 +1,73 @@
+"""The typed blackboard keys: the only way behaviours share data (ARCHITECTURE.md §3).
+
+Each key has one record type. Behaviours declare which keys they read and write
+(:class:`behaviours.base.Node`); py_trees enforces the access at run time and the
+compiler checks at compile time that every key read has a writer that runs before it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from executive.core.records import (
+    FeatureObservations,
+    Obstacles,
+    OperatorRequests,
+    PoseEstimate,
+    SensorFrame,
+    VelocityCommand,
+)
+
+
+@dataclass(frozen=True, slots=True)
+class Key:
+    """A blackboard key and the type of the record stored under it."""
+
+    name: str
+    type: type
+
+    def __str__(self) -> str:
+        return self.name
+
+
+@dataclass(frozen=True, slots=True)
+class MissionProgress:
+    """Where the mission stands; written by the mission behaviours, journaled by the runtime.
+
+    ``phase`` is approach / inspection / return / done; ``checkpoint`` the id being worked
+    on (or the last one); ``completed`` the ids of the checkpoints finished so far, in
+    order; ``results`` one :class:`ItemResult` per inspected item, in order.
+    """
+
+    phase: str = "approach"
+    checkpoint: str | None = None
+    goal: str | None = None
+    completed: tuple[str, ...] = ()
+    results: tuple[ItemResult, ...] = ()
+
+
+@dataclass(frozen=True, slots=True)
+class ItemResult:
+    """One inspected item: when, from where, with which camera pose, detected or not."""
+
+    checkpoint: str
+    item: str
+    stamp: float
+    detected: bool
+    camera: str
+    pan: float
+    tilt: float
+    pose_f: tuple[float, float, float]
+
+
+SENSOR_FRAME = Key("/sensors/frame", SensorFrame)
+POSE = Key("/state/pose", PoseEstimate)
+OBSTACLES = Key("/state/obstacles", Obstacles)
+FEATURES = Key("/state/features", FeatureObservations)
+COMMAND = Key("/command", VelocityCommand)
+PROGRESS = Key("/mission/progress", MissionProgress)
+OPERATOR = Key("/operator", OperatorRequests)
+
+ALL_KEYS = (SENSOR_FRAME, POSE, OBSTACLES, FEATURES, COMMAND, PROGRESS, OPERATOR)
+EXTERNAL_KEYS = (SENSOR_FRAME, OPERATOR)
+"""Written by the runtime before each tick, not by a behaviour."""

@@ -1,0 +1,436 @@
+"""Pose estimation of a skid-steer robot in the airport plane: an extended Kalman filter.
+
+Fuses wheel odometry (thesis eq. 2.1, 2.2, seed lines 829-865), the IMU yaw rate and
+GPS fixes, as the thesis fusion principle (seed lines 1147-1200) describes, and takes
+later absolute measurements (laser registration) through :meth:`PoseFilter.update_pose`
+and :meth:`PoseFilter.update_heading`. Pure numpy and ``math``; no py_trees import.
+
+State (airport frame A: x east, y north, headings counter-clockwise from +x_A)::
+
+    s = (x, y, theta, b, k)
+
+* ``x, y`` (m), ``theta`` (rad, kept in [-pi, pi)): the pose of the robot frame R in A;
+* ``b`` (rad/s): the gyro bias, IMU reading = body yaw rate + b + white noise;
+* ``k`` (-): the wheel-odometry yaw-rate scale, the fraction of the wheels' yaw rate
+  that the body really turns (skid-steer slip: ~0.8-1.0, 1 = no slip).
+
+Models:
+
+* wheels, eq. 2.1 and 2.2 with ``d`` the half track (``track = 2 d``)::
+
+      v       = (v_r + v_l) / 2
+      omega_w = (v_r - v_l) / (2 d)
+
+* body yaw rate: ``omega = imu - b`` when an IMU reading is given, else
+  ``omega = k * omega_w``;
+* motion over ``dt``: an exact arc of constant (v, omega), i.e. a chord of length
+  ``v dt sinc(omega dt / 2)`` along ``theta + omega dt / 2``;
+* ``b`` and ``k`` follow random walks (``gyro_bias_walk``, ``yaw_scale_walk``, per sqrt(s));
+* process noise: the wheel and gyro sample noises (per reading) plus slip, modelled as
+  velocity errors with correlation time ``slip_time``: longitudinal ``slip_speed * |v|``,
+  lateral ``slip_lateral * |v omega|`` and, on wheel yaw, ``slip_turn * |omega_w|`` --
+  so the noise grows in turns, where a skid-steer base slips most;
+* wheel/IMU yaw consistency (when both are read and ``fuse_wheel_yaw``): the wheels'
+  yaw rate is a scalar measurement of (b, k), ``omega_w = (imu - b) / k + noise``, with
+  H = (0, 0, 0, -1/k, -(imu - b)/k^2). Driving straight or standing still it observes the
+  gyro bias, in turns the slip scale; GPS refines both. The precise IMU rate is the
+  regressor and the noisy wheel rate the measurement, so wheel noise does not bias k
+  (regressing on a noisy rate would pull the slope towards 0: regression dilution); k
+  is learnt only while ``|imu - b|`` exceeds 3 ``gyro_noise``, and likewise, without an
+  IMU, only while ``|omega_w|`` exceeds 3 sigma of its wheel noise. (The same IMU
+  reading also drives the prediction; the correlation is neglected, which is harmless as
+  the wheel noise dominates this measurement's variance.)
+
+Measurements: GPS position (H = [I2 0], gated by the Mahalanobis distance), heading
+(H = e3) and full pose (H = [I3 0]); innovations in theta are wrapped to [-pi, pi).
+Updates use the Joseph form and the covariance is symmetrised after every step.
+
+:attr:`PoseFilter.confidence` maps the covariance to [0, 1]::
+
+    sigma_eff = sqrt(P_xx + P_yy + (lever * sigma_theta)^2)
+    confidence = exp(-(sigma_eff / confidence_scale)^2)
+
+with ``lever = 1 m`` (a heading error displaces a point 1 m ahead, e.g. a camera target)
+and ``confidence_scale = 0.15 m``: 1 cm -> 0.996, 5 cm -> 0.89, 10 cm -> 0.64,
+20 cm -> 0.17, 30 cm -> 0.018.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from executive.core.frames import AircraftPlacement, FloatArray, Pose2, wrap_angle
+from executive.core.records import GpsFix, ImuReading, PoseEstimate, WheelSpeeds
+
+CHI2_999 = {1: 10.828, 2: 13.816, 3: 16.266}
+"""Chi-square 99.9% quantiles by degrees of freedom (Mahalanobis gates)."""
+
+
+def wheel_odometry(wheels: WheelSpeeds, track: float) -> tuple[float, float]:
+    """(v, omega) of the body from the wheel ground speeds, thesis eq. 2.1 and 2.2.
+
+    ``track`` is the left-to-right wheel distance, twice the ``d`` of eq. 2.2.
+    """
+    return 0.5 * (wheels.right + wheels.left), (wheels.right - wheels.left) / track
+
+
+class PoseFilter:
+    """EKF on (x, y, theta, b, k) for a skid-steer robot; see the module docstring."""
+
+    def __init__(
+        self,
+        initial: Pose2,
+        *,
+        track: float,
+        sigma_xy: float = 0.05,
+        sigma_theta: float = 0.05,
+        wheel_noise: float = 0.02,
+        gyro_noise: float = 0.005,
+        gyro_bias_walk: float = 1e-4,
+        gyro_bias: float = 0.0,
+        sigma_gyro_bias: float = 0.01,
+        yaw_scale: float = 0.9,
+        sigma_yaw_scale: float = 0.1,
+        yaw_scale_walk: float = 0.005,
+        yaw_scale_bounds: tuple[float, float] = (0.5, 1.2),
+        slip_speed: float = 0.02,
+        slip_lateral: float = 0.05,
+        slip_turn: float = 0.1,
+        slip_time: float = 1.0,
+        fuse_wheel_yaw: bool = True,
+        gps_gate: float = CHI2_999[2],
+        gps_reset_after: int = 10,
+        confidence_scale: float = 0.15,
+        confidence_lever: float = 1.0,
+    ) -> None:
+        """Start at ``initial`` with independent errors on every state.
+
+        ``wheel_noise`` (m/s) and ``gyro_noise`` (rad/s) are 1-sigma noises of one
+        reading; ``gyro_bias_walk`` (rad/s/sqrt(s)) and ``yaw_scale_walk`` (1/sqrt(s))
+        the random walks of b and k. ``gps_gate`` is the Mahalanobis gate (squared) of a
+        GPS fix; after ``gps_reset_after`` consecutive rejected fixes the filter deems
+        itself lost and re-centres its position on the next fix.
+        """
+        if track <= 0.0:
+            raise ValueError(f"track must be positive, got {track}")
+        self.track = float(track)
+        self.wheel_noise = float(wheel_noise)
+        self.gyro_noise = float(gyro_noise)
+        self.gyro_bias_walk = float(gyro_bias_walk)
+        self.yaw_scale_walk = float(yaw_scale_walk)
+        self.yaw_scale_bounds = (float(yaw_scale_bounds[0]), float(yaw_scale_bounds[1]))
+        self.slip_speed = float(slip_speed)
+        self.slip_lateral = float(slip_lateral)
+        self.slip_turn = float(slip_turn)
+        self.slip_time = float(slip_time)
+        self.fuse_wheel_yaw = bool(fuse_wheel_yaw)
+        self.gps_gate = float(gps_gate)
+        self.gps_reset_after = int(gps_reset_after)
+        self.confidence_scale = float(confidence_scale)
+        self.confidence_lever = float(confidence_lever)
+        # variance of one reading of eq. 2.1 / eq. 2.2 from independent wheel noises
+        self._var_v = 0.5 * self.wheel_noise**2
+        self._var_wheel_yaw = 2.0 * self.wheel_noise**2 / self.track**2
+        # without an IMU, k is learnt only while the wheels clearly turn (see the module doc)
+        self._k_min_rate = 3.0 * math.sqrt(self._var_wheel_yaw)
+        self._eye = np.eye(5)
+        self._f = np.eye(5)
+        self._h_yaw = np.zeros(5)
+        self.gps_accepted = 0
+        self.gps_rejected = 0
+        self.consecutive_gps_rejections = 0
+        self._x = self._y = self._theta = 0.0
+        self._b, self._k = float(gyro_bias), float(yaw_scale)
+        self._p = np.zeros((5, 5))
+        self.reset(initial, np.diag([sigma_xy**2, sigma_xy**2, sigma_theta**2]))
+        self._p[3, 3] = sigma_gyro_bias**2
+        self._p[4, 4] = sigma_yaw_scale**2
+
+    # -- state --------------------------------------------------------------------------
+    def reset(self, pose: Pose2, cov: ArrayLike) -> None:
+        """Re-initialise the pose (x, y, theta) and its 3x3 covariance; keep b and k."""
+        c = np.asarray(cov, dtype=float)
+        if c.shape != (3, 3):
+            raise ValueError(f"pose covariance must be 3x3, got {c.shape}")
+        self._x, self._y, self._theta = float(pose.x), float(pose.y), wrap_angle(float(pose.theta))
+        self._p[:3, :] = 0.0
+        self._p[:, :3] = 0.0
+        self._p[:3, :3] = 0.5 * (c + c.T)
+
+    @property
+    def pose(self) -> Pose2:
+        return Pose2(self._x, self._y, self._theta)
+
+    @property
+    def covariance(self) -> FloatArray:
+        """3x3 covariance of (x, y, theta), a copy."""
+        return self._p[:3, :3].copy()
+
+    @property
+    def state(self) -> FloatArray:
+        """(x, y, theta, b, k)."""
+        return np.array([self._x, self._y, self._theta, self._b, self._k])
+
+    @property
+    def state_covariance(self) -> FloatArray:
+        """5x5 covariance of :attr:`state`, a copy."""
+        return self._p.copy()
+
+    @property
+    def gyro_bias(self) -> float:
+        return self._b
+
+    @property
+    def yaw_scale(self) -> float:
+        return self._k
+
+    @property
+    def position_sigma(self) -> float:
+        """sqrt(P_xx + P_yy) (m)."""
+        return math.sqrt(max(self._p[0, 0] + self._p[1, 1], 0.0))
+
+    @property
+    def confidence(self) -> float:
+        """exp(-(sigma_eff / confidence_scale)^2), see the module docstring."""
+        p = self._p
+        lever2 = self.confidence_lever**2
+        var = max(p[0, 0] + p[1, 1] + lever2 * p[2, 2], 0.0)
+        return math.exp(-var / self.confidence_scale**2)
+
+    def estimate(
+        self, stamp: float, placement: AircraftPlacement, sources: tuple[str, ...] = ()
+    ) -> PoseEstimate:
+        """The blackboard record, with the pose also in the aircraft frame."""
+        pose = self.pose
+        return PoseEstimate(
+            stamp=stamp,
+            pose_a=pose,
+            covariance=self.covariance,
+            pose_f=placement.pose_to_aircraft(pose),
+            confidence=self.confidence,
+            sources=sources,
+        )
+
+    # -- prediction ---------------------------------------------------------------------
+    def predict(self, wheels: WheelSpeeds, imu: ImuReading | None, dt: float) -> None:
+        """Propagate over ``dt`` (s) with eq. 2.1 for v and the IMU (or eq. 2.2 x k) for
+        the yaw rate; then, with both, the wheel/IMU yaw consistency update.
+
+        A non-finite IMU reading is ignored (wheel yaw is used); non-finite wheel speeds or
+        ``dt <= 0`` leave the filter unchanged.
+        """
+        if not dt > 0.0:
+            return
+        v = 0.5 * (wheels.right + wheels.left)
+        omega_w = (wheels.right - wheels.left) / self.track
+        if not (math.isfinite(v) and math.isfinite(omega_w)):
+            return
+        imu_rate = imu.yaw_rate if imu is not None else math.nan
+        has_imu = math.isfinite(imu_rate)
+        k = self._k
+        if has_imu:
+            omega = imu_rate - self._b
+            dw_db, dw_dk = -1.0, 0.0
+            var_w = self.gyro_noise**2
+        else:
+            omega = k * omega_w
+            dw_db = 0.0
+            dw_dk = omega_w if abs(omega_w) > self._k_min_rate else 0.0
+            var_w = (
+                k * k * self._var_wheel_yaw + (self.slip_turn * omega_w) ** 2 * self.slip_time / dt
+            )
+
+        # exact arc: chord length v dt sinc(h) along theta + h, h = omega dt / 2
+        h = 0.5 * omega * dt
+        if abs(h) < 1e-4:
+            sinc, dsinc = 1.0 - h * h / 6.0, -h / 3.0
+        else:
+            sinc = math.sin(h) / h
+            dsinc = (h * math.cos(h) - math.sin(h)) / (h * h)
+        vdt = v * dt
+        dist = vdt * sinc
+        phi = self._theta + h
+        c, s = math.cos(phi), math.sin(phi)
+        self._x += dist * c
+        self._y += dist * s
+        self._theta = wrap_angle(self._theta + omega * dt)
+
+        # sensitivities of (x, y, theta) to omega and v
+        half_dt = 0.5 * dt
+        dx_dw = half_dt * (vdt * dsinc * c - dist * s)
+        dy_dw = half_dt * (vdt * dsinc * s + dist * c)
+        dx_dv, dy_dv = dt * sinc * c, dt * sinc * s
+
+        f = self._f
+        f[0, 2] = -dist * s
+        f[1, 2] = dist * c
+        f[0, 3], f[1, 3], f[2, 3] = dx_dw * dw_db, dy_dw * dw_db, dt * dw_db
+        f[0, 4], f[1, 4], f[2, 4] = dx_dw * dw_dk, dy_dw * dw_dk, dt * dw_dk
+        p = np.dot(np.dot(f, self._p), f.T)
+
+        # process noise: G diag(var) G^T over v (along phi), lateral and omega
+        corr = self.slip_time / dt
+        var_v = self._var_v + (self.slip_speed * v) ** 2 * corr
+        var_l = (self.slip_lateral * v * omega) ** 2 * corr
+        lx, ly = -s * dt, c * dt
+        qxx = var_v * dx_dv * dx_dv + var_l * lx * lx + var_w * dx_dw * dx_dw
+        qyy = var_v * dy_dv * dy_dv + var_l * ly * ly + var_w * dy_dw * dy_dw
+        qxy = var_v * dx_dv * dy_dv + var_l * lx * ly + var_w * dx_dw * dy_dw
+        qxt = var_w * dx_dw * dt
+        qyt = var_w * dy_dw * dt
+        p[0, 0] += qxx
+        p[1, 1] += qyy
+        p[2, 2] += var_w * dt * dt
+        p[0, 1] += qxy
+        p[1, 0] += qxy
+        p[0, 2] += qxt
+        p[2, 0] += qxt
+        p[1, 2] += qyt
+        p[2, 1] += qyt
+        p[3, 3] += self.gyro_bias_walk**2 * dt
+        p[4, 4] += self.yaw_scale_walk**2 * dt
+        self._p = p  # symmetric up to rounding: symmetrised once, after the yaw update
+        if not (
+            has_imu and self.fuse_wheel_yaw and self._update_yaw_consistency(imu_rate, omega_w)
+        ):
+            self._p = (p + p.T) * 0.5
+
+    def _update_yaw_consistency(self, imu_rate: float, omega_w: float) -> bool:
+        """Scalar update: omega_w = (imu - b) / k, H = (0, 0, 0, -1/k, -(imu - b)/k^2)."""
+        k = self._k
+        rate = imu_rate - self._b
+        r = self._var_wheel_yaw + (self.gyro_noise / k) ** 2 + (self.slip_turn * omega_w) ** 2
+        h = self._h_yaw
+        h[3] = -1.0 / k
+        h[4] = -rate / (k * k) if abs(rate) > 3.0 * self.gyro_noise else 0.0
+        return self._correct_scalar(h, omega_w - rate / k, r)
+
+    # -- measurements -------------------------------------------------------------------
+    def update_gps(self, fix: GpsFix) -> bool:
+        """Position update with the fix's sigma; False when the Mahalanobis gate rejects it.
+
+        After ``gps_reset_after`` consecutive rejections the filter is taken to be lost:
+        the next fix re-centres the position (covariance sigma^2 I, correlations cleared).
+        """
+        if not (math.isfinite(fix.x) and math.isfinite(fix.y) and fix.sigma > 0.0):
+            return False
+        r = fix.sigma**2
+        if 0 < self.gps_reset_after <= self.consecutive_gps_rejections:
+            p = self._p
+            p[:2, :] = 0.0
+            p[:, :2] = 0.0
+            p[0, 0] = p[1, 1] = r
+            self._x, self._y = float(fix.x), float(fix.y)
+            self.consecutive_gps_rejections = 0
+            self.gps_accepted += 1
+            return True
+        y = np.array([fix.x - self._x, fix.y - self._y])
+        if self._correct_block(2, y, np.array([[r, 0.0], [0.0, r]]), self.gps_gate):
+            self.gps_accepted += 1
+            self.consecutive_gps_rejections = 0
+            return True
+        self.gps_rejected += 1
+        self.consecutive_gps_rejections += 1
+        return False
+
+    def update_heading(self, theta: float, sigma: float, gate: float | None = None) -> bool:
+        """Absolute heading measurement (rad) with 1-sigma ``sigma``; wrapped innovation.
+
+        ``gate`` (squared Mahalanobis distance, e.g. ``CHI2_999[1]``) rejects outliers;
+        None accepts everything. Returns whether the measurement was used.
+        """
+        if not (math.isfinite(theta) and sigma > 0.0):
+            return False
+        h = self._eye[2]
+        return self._correct_scalar(h, wrap_angle(theta - self._theta), sigma**2, gate)
+
+    def update_pose(self, pose: Pose2, cov: ArrayLike, gate: float | None = None) -> bool:
+        """Absolute pose measurement (e.g. laser registration) with its 3x3 covariance.
+
+        The estimate moves towards ``pose`` by the Kalman gain P (P + cov)^-1 (wrapped
+        heading innovation). ``gate`` as in :meth:`update_heading` (``CHI2_999[3]``).
+        """
+        r = np.asarray(cov, dtype=float)
+        if r.shape != (3, 3):
+            raise ValueError(f"pose covariance must be 3x3, got {r.shape}")
+        if not (math.isfinite(pose.x) and math.isfinite(pose.y) and math.isfinite(pose.theta)):
+            return False
+        y = np.array([pose.x - self._x, pose.y - self._y, wrap_angle(pose.theta - self._theta)])
+        return self._correct_block(3, y, 0.5 * (r + r.T), gate)
+
+    # -- the Kalman correction ----------------------------------------------------------
+    def _correct_block(
+        self, m: int, y: FloatArray, r: FloatArray, gate: float | None = None
+    ) -> bool:
+        """Update with H = [I_m 0] (the first m states), innovation ``y``, noise ``r``."""
+        p = self._p
+        pht = p[:, :m]  # P H^T
+        s_mat = p[:m, :m] + r
+        if m == 2:
+            a, b, c, d = s_mat[0, 0], s_mat[0, 1], s_mat[1, 0], s_mat[1, 1]
+            det = a * d - b * c
+            if not (det > 0.0 and a > 0.0):
+                return False
+            s_inv = np.array([[d, -b], [-c, a]]) / det
+        else:
+            try:
+                s_inv = np.linalg.inv(s_mat)
+            except np.linalg.LinAlgError:
+                return False
+        if gate is not None and not np.dot(y, np.dot(s_inv, y)) <= gate:
+            return False
+        gain = np.dot(pht, s_inv)  # (5, m)
+        a_mat = self._eye.copy()
+        a_mat[:, :m] -= gain  # I - K H
+        return self._apply(np.dot(gain, y), a_mat, np.dot(np.dot(gain, r), gain.T))
+
+    def _correct_scalar(self, h: FloatArray, y: float, r: float, gate: float | None = None) -> bool:
+        """Update with one measurement row ``h`` (5,), innovation ``y``, variance ``r``.
+
+        The Joseph product (I - K h^T) P (I - K h^T)^T is evaluated as two rank-one
+        updates, AP = P - K (P h)^T and AP A^T = AP - (AP h) K^T, cheaper than 5x5 products.
+        """
+        p = self._p
+        pht = np.dot(p, h)
+        s = float(np.dot(h, pht)) + r
+        if not s > 0.0:
+            return False
+        if gate is not None and not y * y / s <= gate:
+            return False
+        gain = pht * (1.0 / s)
+        dx = (gain * y).tolist()
+        if not all(map(math.isfinite, dx)):
+            return False
+        gain_col = gain[:, None]
+        ap = p - gain_col * pht
+        p = ap - np.dot(ap, h)[:, None] * gain
+        p += (gain_col * r) * gain
+        self._p = (p + p.T) * 0.5
+        self._add(dx)
+        return True
+
+    def _apply(self, dx: FloatArray, a_mat: FloatArray, krk: FloatArray) -> bool:
+        """Joseph form P <- (I - K H) P (I - K H)^T + K R K^T, symmetrised; state += dx."""
+        step = dx.tolist()
+        if not all(map(math.isfinite, step)):
+            return False
+        p = np.dot(np.dot(a_mat, self._p), a_mat.T)
+        p += krk
+        self._p = (p + p.T) * 0.5
+        self._add(step)
+        return True
+
+    def _add(self, dx: list[float]) -> None:
+        ddx, ddy, dth, db, dk = dx
+        self._x += ddx
+        self._y += ddy
+        self._theta = wrap_angle(self._theta + dth)
+        self._b += db
+        lo, hi = self.yaw_scale_bounds
+        self._k = min(hi, max(lo, self._k + dk))
+
+
+__all__ = ["CHI2_999", "PoseFilter", "wheel_odometry"]

@@ -1,0 +1,390 @@
+"""Mission model -> behaviour tree (ARCHITECTURE.md §5), checked before it runs.
+
+The tree::
+
+    Parallel "walkaround"
+    |-- Sequence "sensing"              localise, obstacles, features (always SUCCESS)
+    `-- Selector "mode"
+        |-- GuardedBranch "collaborative"  [operator takes over?] -> operator control
+        `-- Sequence "mission" (memory)
+            |-- start mission
+            |-- Sequence "approach"      navigate(waypoint)... navigate(P)
+            |-- Sequence "inspection"    per checkpoint: navigate(cp) -> correct camera
+            |                            angle -> inspect items -> dwell -> done
+            `-- Sequence "return"        navigate(waypoint)... navigate(P) -> navigate(station)
+
+    navigate(goal) = Sequence [not trapped?, GuardSelector:
+                                  [e-stop?] -> emergency stop
+                                  [reached?] -> stop
+                                  go to goal (default)]
+
+After building, :func:`check_tree` proves the wiring: every blackboard key a behaviour
+reads has a writer that runs before it (or is written by the runtime), and every
+controller of a guard selector sits behind its guard (or is the selector's default).
+Neither py_trees nor BehaviorTree.CPP checks this; here a wiring mistake fails at compile
+time. Options the executive cannot honour are reported with their file and line.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+
+import py_trees
+import shapely
+from shapely.geometry import Point
+from shapely.geometry import Polygon as ShapelyPolygon
+from shapely.ops import unary_union
+
+from behaviours.base import Controller, Guard, Node
+from behaviours.controllers.inspection import InspectItems, SetProgress, StartMission
+from behaviours.controllers.motion import (
+    CorrectCameraAngle,
+    Dwell,
+    EStopHold,
+    GoToGoalController,
+    HoldStill,
+)
+from behaviours.guards.conditions import EmergencyStop, NotTrapped, OperatorTakeOver, Reached
+from behaviours.keys import COMMAND, EXTERNAL_KEYS, MissionProgress
+from behaviours.laws.go_to_goal import GoToGoalParams
+from behaviours.sensing.features import SenseFeatures
+from behaviours.sensing.localisation import Localise
+from behaviours.sensing.obstacles import SenseObstacles
+from executive.core.frames import AircraftPlacement, Pose2
+from executive.core.geometry import to_shapely
+from executive.core.model import CameraKind, Checkpoint, Frame, Mission, Waypoint
+from executive.core.problems import InvalidInputError, Problem, SourceLocation
+from executive.core.records import VelocityCommand
+
+Status = py_trees.common.Status
+
+NEAR_AIRFRAME = 3.0
+"""Within this distance (m) of the aircraft the inspection speed applies."""
+
+
+class GuardSelector(py_trees.composites.Selector):
+    """A priority selector of guarded controllers, re-evaluated every tick."""
+
+    def __init__(self, name: str, children: list[py_trees.behaviour.Behaviour]) -> None:
+        super().__init__(name, memory=False, children=children)
+
+
+class GuardedBranch(py_trees.composites.Sequence):
+    """[guard] -> controller: the controller runs only while its guard holds."""
+
+    def __init__(self, name: str, guard: Guard, controller: Controller) -> None:
+        super().__init__(name, memory=False, children=[guard, controller])
+
+
+class Stop(Controller):
+    """Zero command and SUCCESS: ends a navigation that has reached its goal."""
+
+    writes = (COMMAND,)
+
+    def __init__(self, name: str = "stop") -> None:
+        super().__init__(name)
+
+    def update(self) -> Status:
+        self.write(COMMAND, VelocityCommand.stop())
+        return Status.SUCCESS
+
+
+class CompileError(InvalidInputError):
+    """The mission cannot be compiled as written; every reason with its file and line."""
+
+
+@dataclass
+class CompileOptions:
+    rate_hz: float = 50.0
+    trapped_after: float = 120.0
+    """Seconds without progress towards a goal before the mission fails as trapped."""
+    placement: AircraftPlacement | None = None
+    """The executive's idea of where the aircraft stands (default: nominal parking)."""
+    start: Pose2 | None = None
+    """Initial pose estimate in A (default: the charging station)."""
+    resume: MissionProgress | None = None
+    """Progress journaled by an earlier run: completed checkpoints are not visited again."""
+
+
+@dataclass
+class CompiledMission:
+    mission: Mission
+    root: py_trees.behaviour.Behaviour
+    placement: AircraftPlacement
+    warnings: list[Problem] = field(default_factory=list)
+    goto_nodes: list[GoToGoalController] = field(default_factory=list)
+
+
+def _warn(where: SourceLocation, code: str, message: str) -> Problem:
+    return Problem(where, code, message)
+
+
+class _Builder:
+    def __init__(self, mission: Mission, options: CompileOptions) -> None:
+        self.mission = mission
+        self.options = options
+        self.placement = options.placement or mission.nominal_placement()
+        self.period = 1.0 / options.rate_hz
+        self.errors: list[Problem] = []
+        self.warnings: list[Problem] = []
+        self.goto_nodes: list[GoToGoalController] = []
+        nav = mission.navigation
+        platform = mission.platform
+        self.checkpoint_tolerance = (
+            min(0.05, nav.position_tolerance / 3.0),
+            min(math.radians(2.0), nav.heading_tolerance / 2.5),
+        )
+        self.params = dataclasses.replace(
+            GoToGoalParams.from_model(platform, nav),
+            position_tolerance=self.checkpoint_tolerance[0],
+            heading_tolerance=self.checkpoint_tolerance[1],
+        )
+        airframe = [to_shapely(s) for s in (*mission.aircraft.outline, *mission.aircraft.footprint)]
+        shapes = [ShapelyPolygon(self.placement.to_airport_xy(g.exterior.coords)) for g in airframe]
+        self.airframe = unary_union(shapes)
+        shapely.prepare(self.airframe)
+        self.inspection_unit = next(
+            (c for c in platform.cameras.values() if c.kind is CameraKind.PTZ), None
+        )
+
+    # -- helpers ----------------------------------------------------------------------------
+    def speed_limit(self, pose: Pose2) -> float:
+        nav = self.mission.navigation
+        near = self.airframe.distance(Point(pose.x, pose.y)) < NEAR_AIRFRAME
+        return nav.inspection_speed if near else nav.cruise_speed
+
+    def waypoint_goal(self, wp: Waypoint) -> Callable[[], Pose2]:
+        if wp.frame is Frame.AIRCRAFT:
+            heading = wp.heading if wp.heading is not None else 0.0
+            pose = self.placement.pose_to_airport(Pose2(wp.x, wp.y, heading))
+        else:
+            pose = Pose2(wp.x, wp.y, wp.heading or 0.0)
+        return lambda: pose
+
+    def checkpoint_goal(self, cp: Checkpoint) -> Callable[[], Pose2]:
+        pose = self.placement.pose_to_airport(cp.pose)
+        return lambda: pose
+
+    def navigate(
+        self,
+        label: str,
+        goal: Callable[[], Pose2],
+        use_heading: bool,
+        tolerance: tuple[float, float | None],
+    ) -> py_trees.behaviour.Behaviour:
+        safety = self.mission.safety
+        params = dataclasses.replace(
+            self.params,
+            position_tolerance=tolerance[0],
+            heading_tolerance=tolerance[1] if tolerance[1] is not None else math.pi,
+        )
+        goto = GoToGoalController(
+            goal, params, use_heading, self.period, self.speed_limit, name=f"go to {label}"
+        )
+        self.goto_nodes.append(goto)
+        guards = GuardSelector(
+            f"guards {label}",
+            [
+                GuardedBranch(
+                    f"e-stop {label}",
+                    EmergencyStop(safety.r_es, safety.estop_hold, name="e-stop?"),
+                    EStopHold(),
+                ),
+                GuardedBranch(
+                    f"reached {label}",
+                    Reached(goal, tolerance[0], tolerance[1] if use_heading else None),
+                    Stop(),
+                ),
+                goto,
+            ],
+        )
+        return py_trees.composites.Sequence(
+            f"navigate {label}",
+            memory=False,
+            children=[NotTrapped(goal, self.options.trapped_after), guards],
+        )
+
+    # -- phases -------------------------------------------------------------------------------
+    def approach(self) -> py_trees.behaviour.Behaviour:
+        m = self.mission
+        loose = (0.3, None)
+        children: list[py_trees.behaviour.Behaviour] = [SetProgress("approach", goal="P")]
+        for wp in m.approach:
+            children.append(
+                self.navigate(wp.id, self.waypoint_goal(wp), wp.heading is not None, loose)
+            )
+        children.append(self.navigate("P", self.waypoint_goal(m.handover), False, (0.2, None)))
+        return py_trees.composites.Sequence("approach", memory=True, children=children)
+
+    def checkpoint(self, cp: Checkpoint) -> py_trees.behaviour.Behaviour:
+        m = self.mission
+        children: list[py_trees.behaviour.Behaviour] = [
+            SetProgress("inspection", checkpoint=cp.id, goal=cp.id),
+            self.navigate(cp.id, self.checkpoint_goal(cp), True, self.checkpoint_tolerance),
+        ]
+        if cp.camera is not None and cp.target is not None:
+            camera = m.platform.cameras[cp.camera]
+            limit = min(camera.pan_limits[1], -camera.pan_limits[0]) - math.radians(5.0)
+            children.append(
+                CorrectCameraAngle(
+                    camera,
+                    m.aircraft.features[cp.target],
+                    m.aircraft.origin_height,
+                    threshold=max(limit, math.radians(10.0)),
+                    max_omega=m.platform.max_angular_speed / 2,
+                    name=f"correct {cp.camera} angle",
+                )
+            )
+            method = (cp.servo or m.aircraft.features[cp.target].servo).value
+            self.warnings.append(
+                _warn(
+                    cp.where,
+                    "servo-metric",
+                    f"checkpoint '{cp.id}': visual servoing ({method}) on '{cp.target}' is not "
+                    "available in this version; the checkpoint is reached by metric "
+                    "go-to-goal",
+                )
+            )
+        if cp.items:
+            unit = self.inspection_unit or (
+                m.platform.cameras[cp.camera] if cp.camera is not None else None
+            )
+            if unit is None:
+                self.errors.append(
+                    Problem(
+                        cp.where,
+                        "no-inspection-camera",
+                        f"checkpoint '{cp.id}' inspects items but the platform has no PTZ "
+                        "camera and the checkpoint names no camera",
+                    )
+                )
+            else:
+                ids = (
+                    (f"{unit.id}-left", f"{unit.id}-right")
+                    if unit.kind is CameraKind.STEREO
+                    else (unit.id,)
+                )
+                children.append(
+                    InspectItems(cp.id, cp.items, m.aircraft, unit, ids, name=f"inspect {cp.id}")
+                )
+        if cp.dwell > 0:
+            children.append(Dwell(cp.dwell, name=f"dwell {cp.id}"))
+        children.append(SetProgress("inspection", checkpoint=cp.id, done=True))
+        return py_trees.composites.Sequence(f"checkpoint {cp.id}", memory=True, children=children)
+
+    def inspection(self) -> py_trees.behaviour.Behaviour:
+        done = set(self.options.resume.completed) if self.options.resume else set()
+        todo = [cp for cp in self.mission.checkpoints if cp.id not in done]
+        return py_trees.composites.Sequence(
+            "inspection", memory=True, children=[self.checkpoint(cp) for cp in todo]
+        )
+
+    def return_home(self) -> py_trees.behaviour.Behaviour:
+        m = self.mission
+        loose = (0.3, None)
+        children: list[py_trees.behaviour.Behaviour] = [SetProgress("return", goal="station")]
+        for wp in m.return_route:
+            children.append(
+                self.navigate(wp.id, self.waypoint_goal(wp), wp.heading is not None, loose)
+            )
+        children.append(self.navigate("P (return)", self.waypoint_goal(m.handover), False, loose))
+        station = m.airport.station
+        children.append(
+            self.navigate(
+                "station",
+                lambda: station,
+                True,
+                (m.navigation.position_tolerance, m.navigation.heading_tolerance),
+            )
+        )
+        return py_trees.composites.Sequence("return", memory=True, children=children)
+
+    def build(self) -> py_trees.behaviour.Behaviour:
+        m = self.mission
+        start = self.options.start or m.airport.station
+        sensing = py_trees.composites.Sequence(
+            "sensing",
+            memory=False,
+            children=[
+                Localise(start, m.platform.track, self.placement),
+                SenseObstacles(m.platform),
+                SenseFeatures(),
+            ],
+        )
+        resume = self.options.resume
+        phases: list[py_trees.behaviour.Behaviour] = [StartMission(resume)]
+        if resume is None or (not resume.completed and resume.phase == "approach"):
+            phases.append(self.approach())
+        phases.append(self.inspection())
+        phases.append(self.return_home())
+        phases.append(SetProgress("done", name="mission done"))
+        mission = py_trees.composites.Sequence("mission", memory=True, children=phases)
+        mode = py_trees.composites.Selector(
+            "mode",
+            memory=False,
+            children=[GuardedBranch("collaborative", OperatorTakeOver(), HoldStill()), mission],
+        )
+        policy = py_trees.common.ParallelPolicy.SuccessOnSelected([mode], synchronise=False)
+        return py_trees.composites.Parallel("walkaround", policy, children=[sensing, mode])
+
+
+def compile_mission(mission: Mission, options: CompileOptions | None = None) -> CompiledMission:
+    """Build and check the tree; raise :class:`CompileError` with every reason otherwise."""
+    builder = _Builder(mission, options or CompileOptions())
+    root = builder.build()
+    errors = builder.errors + [
+        Problem(SourceLocation(mission.source), "tree", message) for message in check_tree(root)
+    ]
+    if errors:
+        raise CompileError(errors)
+    return CompiledMission(mission, root, builder.placement, builder.warnings, builder.goto_nodes)
+
+
+# -- the tree's own checks --------------------------------------------------------------------
+def _preorder(node: py_trees.behaviour.Behaviour) -> Iterator[py_trees.behaviour.Behaviour]:
+    yield node
+    for child in node.children:
+        yield from _preorder(child)
+
+
+def check_tree(root: py_trees.behaviour.Behaviour) -> list[str]:
+    """Wiring mistakes of a compiled tree (empty when sound)."""
+    problems: list[str] = []
+    written = {k.name for k in EXTERNAL_KEYS}
+    for node in _preorder(root):
+        if isinstance(node, Node):
+            for key in node.reads:
+                if key.name not in written:
+                    problems.append(
+                        f"'{node.name}' reads {key.name} but nothing writes it before it runs"
+                    )
+            written.update(k.name for k in node.writes)
+        if isinstance(node, GuardSelector):
+            *branches, default = node.children
+            if not isinstance(default, Controller):
+                problems.append(f"'{node.name}' must end with a default controller")
+            for branch in branches:
+                if not isinstance(branch, GuardedBranch):
+                    problems.append(f"'{node.name}': '{branch.name}' is not a guarded branch")
+        if isinstance(node, GuardedBranch):
+            kids = node.children
+            if (
+                len(kids) != 2
+                or not isinstance(kids[0], Guard)
+                or not isinstance(kids[1], Controller)
+            ):
+                problems.append(f"'{node.name}' must be [guard] -> controller")
+        parent = node.parent
+        if (
+            isinstance(node, Controller)
+            and isinstance(parent, GuardSelector)
+            and node is not parent.children[-1]
+        ):
+            problems.append(
+                f"controller '{node.name}' in '{parent.name}' has no guard "
+                "(only the last child may be unguarded)"
+            )
+    return problems

@@ -1,0 +1,759 @@
+"""Views and exports of a compiled mission tree (``compile_mission(...).root``).
+
+* :func:`to_ascii` - an indented text tree with composite markers and memory;
+* :func:`to_dot` - Graphviz DOT text, written here (no pydot, no graphviz binary);
+* :func:`render` - a PNG or SVG drawn with matplotlib on a layered layout (:func:`layout`);
+* :func:`to_btcpp` - BehaviorTree.CPP v4 XML that Groot2 can open.
+
+Node roles, shared by every view: a :class:`~behaviours.base.Guard` is a *condition*, a
+:class:`~behaviours.base.Controller` a *controller*, any other leaf an *action*.
+
+BehaviorTree.CPP v4 mapping
+---------------------------
+
+=====================================  ============================================
+py_trees                               BT.CPP v4
+=====================================  ============================================
+``Sequence(memory=True)``              ``<Sequence>`` (resumes at the running child,
+                                       restarts after a failure)
+``Sequence(memory=False)``             ``<ReactiveSequence>`` (e.g. ``GuardedBranch``)
+``Selector(memory=True)``              ``<Fallback>``
+``Selector(memory=False)``             ``<ReactiveFallback>`` (e.g. ``GuardSelector``)
+``Parallel(SuccessOnAll)``             ``<Parallel success_count="-1" failure_count="1">``
+``Parallel(SuccessOnOne)``             ``<Parallel success_count="1" failure_count="1">``
+``Parallel(SuccessOnSelected(s))``     ``<Parallel success_count="len(s)" failure_count="1">``
+``decorators.Inverter``                ``<Inverter>``
+``decorators.FailureIsSuccess``        ``<ForceSuccess>``
+``decorators.SuccessIsFailure``        ``<ForceFailure>``
+``decorators.SuccessIsRunning``        ``<KeepRunningUntilFailure>``
+other decorator / composite            ``<ClassName>``, declared ``Decorator``/``Control``
+leaf (Guard / other)                   ``<ClassName name=...>``, declared ``Condition`` /
+                                       ``Action`` in ``<TreeNodesModel>``
+=====================================  ============================================
+
+BT.CPP v4 writes a custom leaf as its own tag (v3's ``<Condition ID="...">`` is not used).
+The tag is the Python class name (renamed ``Walkaround<Name>`` if it clashes with a
+BT.CPP built-in, ``<Name>_2``... if two classes share a name). Attributes:
+
+* ``name`` - the behaviour's name (lxml escapes it);
+* one port per blackboard :class:`~behaviours.keys.Key` the node declares: a key it only
+  reads is an ``input_port``, one it only writes an ``output_port``, one it reads and
+  writes an ``inout_port``. Port name and blackboard entry are the key name with its
+  separators replaced by ``_``: ``/state/pose`` -> ``state_pose="{state_pose}"`` (BT.CPP
+  remapping syntax; one blackboard shared by the whole tree, as in walkaround);
+* the node's parameters as constant ``input_port`` values. A behaviour may define
+  ``bt_ports() -> Mapping[str, object]`` to choose them; otherwise they are read from the
+  arguments of its ``__init__`` (``name`` excepted): the attribute of that name on the
+  node, or a field of that name of a dataclass attribute (``EmergencyStop.latch.r_es``).
+  bool -> ``true``/``false``, numbers -> ``repr``, enums -> their value, sequences of
+  simple values -> ``a;b;c`` (BT.CPP's convention), an object with a string ``id`` -> the
+  id, a dataclass -> its simple fields as ``<param>_<field>``; callables, ``None`` and
+  anything else are left out (braces become parentheses: ``{`` would mean a key).
+
+BT.CPP rejects an attribute its model does not declare, so ``<TreeNodesModel>`` declares
+every custom type once, with the union of the ports its instances use (blackboard ports
+with ``default="{entry}"`` so a node dropped in Groot2 comes wired).
+
+What BT.CPP cannot say exactly: its ``Parallel`` does not tick a child again once it has
+finished, and it counts successes over all children. py_trees' ``SuccessOnSelected``
+(used by the walkaround root: sensing runs beside the mission, every tick) therefore has
+no one-to-one equivalent. With ``keep_running_unselected=True`` the children outside the
+selection are wrapped in ``<KeepRunningUntilFailure>`` (py_trees ``SuccessIsRunning``),
+which restores the py_trees semantics at the cost of one extra node per child; by default
+the tree is exported node for node and the Parallel carries an XML comment saying so.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import inspect
+import re
+import textwrap
+from collections.abc import Iterator
+from pathlib import Path
+
+import matplotlib
+import py_trees
+from lxml import etree
+from matplotlib.collections import LineCollection
+from matplotlib.figure import Figure
+from matplotlib.patches import Patch
+
+from behaviours.base import Controller, Guard, Node
+
+Behaviour = py_trees.behaviour.Behaviour
+
+__all__ = [
+    "BTCPP_BUILTINS",
+    "bt_port_name",
+    "layout",
+    "render",
+    "to_ascii",
+    "to_btcpp",
+    "to_dot",
+]
+
+# -- classification -------------------------------------------------------------------------
+SEQUENCE, SELECTOR, PARALLEL, DECORATOR, COMPOSITE = (
+    "sequence",
+    "selector",
+    "parallel",
+    "decorator",
+    "composite",
+)
+CONDITION, CONTROLLER, ACTION = "condition", "controller", "action"
+_COMPOSITES = (SEQUENCE, SELECTOR, PARALLEL, COMPOSITE)
+
+
+def _kind(node: Behaviour) -> str:
+    if isinstance(node, py_trees.composites.Sequence):
+        return SEQUENCE
+    if isinstance(node, py_trees.composites.Selector):
+        return SELECTOR
+    if isinstance(node, py_trees.composites.Parallel):
+        return PARALLEL
+    if isinstance(node, py_trees.composites.Composite):
+        return COMPOSITE
+    if isinstance(node, py_trees.decorators.Decorator):
+        return DECORATOR
+    if isinstance(node, Guard):
+        return CONDITION
+    if isinstance(node, Controller):
+        return CONTROLLER
+    return ACTION
+
+
+def _memory(node: Behaviour) -> bool | None:
+    """True/False for a Sequence or Selector, None for anything else."""
+    if _kind(node) in (SEQUENCE, SELECTOR):
+        return bool(node.memory)
+    return None
+
+
+def _preorder(node: Behaviour, depth: int = 0) -> Iterator[tuple[Behaviour, int]]:
+    yield node, depth
+    for child in node.children:
+        yield from _preorder(child, depth + 1)
+
+
+def _one_line(text: str) -> str:
+    """``text`` with control characters shown as escapes, so it stays on one line."""
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+
+
+def _policy(node: py_trees.composites.Parallel) -> str:
+    policy = node.policy
+    name = type(policy).__name__
+    if isinstance(policy, py_trees.common.ParallelPolicy.SuccessOnSelected):
+        name += "(" + ", ".join(child.name for child in policy.children) + ")"
+    if getattr(policy, "synchronise", False):
+        name += ", synchronised"
+    return name
+
+
+def _description(node: Behaviour) -> str:
+    """Class name, memory or policy: the second line of every view."""
+    cls = type(node).__name__
+    memory = _memory(node)
+    if memory is not None:
+        return f"{cls}, {'memory' if memory else 'reactive'}"
+    if _kind(node) == PARALLEL:
+        return f"{cls}, {_policy(node)}"
+    return cls
+
+
+_MARKERS_UNICODE = {
+    SEQUENCE: "→",
+    SELECTOR: "?",
+    PARALLEL: "⇉",
+    DECORATOR: "◇",
+    COMPOSITE: "▣",
+    CONDITION: "◯",
+    CONTROLLER: "▶",
+    ACTION: "■",
+}
+_MARKERS_ASCII = {
+    SEQUENCE: "[->]",
+    SELECTOR: "[?]",
+    PARALLEL: "[=>]",
+    DECORATOR: "[<>]",
+    COMPOSITE: "[+]",
+    CONDITION: "(c)",
+    CONTROLLER: "[>]",
+    ACTION: "[*]",
+}
+
+
+# -- text -----------------------------------------------------------------------------------
+def to_ascii(root: Behaviour, *, unicode: bool = False) -> str:
+    """An indented tree, one behaviour a line: ``<marker> <name>  (<class>, <memory>)``.
+
+    Markers (ASCII / ``unicode=True``): Sequence ``[->]``/``→``, Selector ``[?]``/``?``,
+    Parallel ``[=>]``/``⇉``, decorator ``[<>]``/``◇``, condition ``(c)``/``◯``,
+    controller ``[>]``/``▶``, other action ``[*]``/``■``. Sequences and selectors say
+    ``memory`` or ``reactive``; a parallel its policy.
+    """
+    markers = _MARKERS_UNICODE if unicode else _MARKERS_ASCII
+    tee, last, pipe, blank = (
+        ("├── ", "└── ", "│   ", "    ") if unicode else ("|-- ", "`-- ", "|   ", "    ")
+    )
+    lines: list[str] = []
+
+    def walk(node: Behaviour, lead: str, branch: str) -> None:
+        lines.append(
+            f"{lead}{branch}{markers[_kind(node)]} {_one_line(node.name)}  ({_description(node)})"
+        )
+        inner = lead + (blank if branch in ("", last) else pipe)
+        for i, child in enumerate(node.children):
+            walk(child, inner, last if i == len(node.children) - 1 else tee)
+
+    walk(root, "", "")
+    return "\n".join(lines) + "\n"
+
+
+# -- Graphviz DOT ---------------------------------------------------------------------------
+_FILL = {
+    SEQUENCE: "#cfe2ff",
+    SELECTOR: "#ffe2b8",
+    PARALLEL: "#e2d4f0",
+    DECORATOR: "#eeeeee",
+    COMPOSITE: "#eeeeee",
+    CONDITION: "#fff3a8",
+    CONTROLLER: "#c8ecc8",
+    ACTION: "#e4e4e4",
+}
+
+
+def _dot_escape(text: str) -> str:
+    """Text for the inside of a DOT double-quoted label (backslash, quote, line breaks)."""
+    text = text.replace("\\", "\\\\").replace('"', '\\"')
+    text = text.replace("\r\n", "\n").replace("\r", "\n").replace("\n", "\\n")
+    return "".join(c if c.isprintable() else " " for c in text)
+
+
+def to_dot(root: Behaviour, *, graph_name: str = "walkaround") -> str:
+    """Graphviz DOT text of the tree: one ``nK [...]`` line per behaviour (pre-order), then
+    one ``nP -> nC`` edge per parent-child pair.
+
+    Composites are boxes labelled with their marker (Sequence ``→``, Selector ``?``,
+    Parallel ``⇉``) and ``memory``/``reactive``; memory composites get a double border.
+    Conditions (guards) are ellipses, controllers rounded boxes, other actions rounded
+    dashed boxes, decorators hexagons.
+    """
+    ids: dict[int, str] = {}
+    nodes: list[str] = []
+    edges: list[str] = []
+    for node, _ in _preorder(root):
+        ident = f"n{len(ids)}"
+        ids[id(node)] = ident
+        kind = _kind(node)
+        label = (
+            _dot_escape(f"{_MARKERS_UNICODE[kind]} {node.name}")
+            + "\\n"
+            + _dot_escape(_description(node))
+        )
+        attrs = [f'label="{label}"', f'fillcolor="{_FILL[kind]}"']
+        if kind in _COMPOSITES:
+            attrs += ["shape=box", 'style="filled"']
+            if _memory(node):
+                attrs.append("peripheries=2")
+        elif kind == DECORATOR:
+            attrs += ["shape=hexagon", 'style="filled"']
+        elif kind == CONDITION:
+            attrs += ["shape=ellipse", 'style="filled"']
+        elif kind == CONTROLLER:
+            attrs += ["shape=box", 'style="rounded,filled"']
+        else:
+            attrs += ["shape=box", 'style="rounded,filled,dashed"']
+        nodes.append(f"  {ident} [{', '.join(attrs)}];")
+    for node, _ in _preorder(root):
+        edges += [f"  {ids[id(node)]} -> {ids[id(child)]};" for child in node.children]
+    header = [
+        f'digraph "{_dot_escape(graph_name)}" {{',
+        "  graph [rankdir=TB, ordering=out, nodesep=0.15, ranksep=0.45];",
+        '  node [fontname="Helvetica", fontsize=10, margin="0.08,0.04"];',
+        "  edge [arrowhead=none];",
+    ]
+    return "\n".join([*header, *nodes, *edges, "}"]) + "\n"
+
+
+# -- layered layout and matplotlib drawing ----------------------------------------------------
+def layout(root: Behaviour) -> list[tuple[Behaviour, float, int]]:
+    """``(node, x, depth)`` in pre-order: leaves at x = 0, 1, 2... in order, every parent
+    centred over its first and last child, depth 0 at the root."""
+    placed: list[tuple[Behaviour, float, int]] = []
+    next_leaf = 0
+
+    def place(node: Behaviour, depth: int) -> float:
+        nonlocal next_leaf
+        index = len(placed)
+        placed.append((node, 0.0, depth))
+        if node.children:
+            xs = [place(child, depth + 1) for child in node.children]
+            x = (xs[0] + xs[-1]) / 2.0
+        else:
+            x = float(next_leaf)
+            next_leaf += 1
+        placed[index] = (node, x, depth)
+        return x
+
+    place(root, 0)
+    return placed
+
+
+_UNIT_W = 1.25  # inches per leaf
+_LEVEL_H = 1.0  # inches per depth level
+_MARGIN = 0.3
+_LEGEND_H = 0.45
+_FONT = 7.5
+_WRAP = 17  # characters per line of a box
+_MAX_PIXELS = 65000  # Agg's limit is 2**16 pixels a side
+
+
+def _box_label(node: Behaviour) -> str:
+    kind = _kind(node)
+    name = textwrap.wrap(
+        _one_line(node.name), _WRAP, break_long_words=True, break_on_hyphens=True
+    ) or [""]
+    cls = type(node).__name__
+    memory = _memory(node)
+    info = f"{cls} (memory)" if memory else cls
+    return "\n".join([f"{_MARKERS_UNICODE[kind]} {name[0]}", *name[1:], info])
+
+
+def _box_style(node: Behaviour) -> dict:
+    kind = _kind(node)
+    style = {
+        "facecolor": _FILL[kind],
+        "edgecolor": "#333333",
+        "linewidth": 0.8,
+        "boxstyle": "round,pad=0.35",
+    }
+    if kind in _COMPOSITES:
+        style["boxstyle"] = "square,pad=0.35"
+        if _memory(node):
+            style["linewidth"] = 2.0
+    elif kind == CONDITION:
+        style["boxstyle"] = "ellipse,pad=0.25"
+    elif kind == DECORATOR:
+        style["boxstyle"] = "round4,pad=0.35"
+    elif kind == ACTION:
+        style["linestyle"] = "--"
+    return style
+
+
+def render(root: Behaviour, path: Path, *, dpi: float = 100.0) -> Path:
+    """Draw the tree to ``path``, a ``.png`` or ``.svg`` (no graphviz needed).
+
+    Boxes sit on :func:`layout`'s grid, 1.25 in per leaf and 1 in per level, so a big tree
+    (the A320 mission: ~450 behaviours, ~300 leaves) makes a wide figure at a constant,
+    readable text size; a PNG's resolution is lowered only where it would exceed Agg's
+    65536-pixel limit. SVG text is kept as text (searchable).
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in (".png", ".svg"):
+        raise ValueError(f"render: {path.name} should end in .png or .svg")
+    placed = layout(root)
+    leaves = sum(1 for node, _, _ in placed if not node.children)
+    depth = max(d for _, _, d in placed)
+    width = max(6.0, leaves * _UNIT_W + 2 * _MARGIN)
+    height = (depth + 1) * _LEVEL_H + 2 * _MARGIN + _LEGEND_H
+    offset = (width - leaves * _UNIT_W) / 2.0
+
+    def xy(x: float, d: int) -> tuple[float, float]:
+        return offset + (x + 0.5) * _UNIT_W, height - _MARGIN - _LEGEND_H - (d + 0.5) * _LEVEL_H
+
+    where = {id(node): xy(x, d) for node, x, d in placed}
+    with matplotlib.rc_context({"svg.fonttype": "none", "font.family": "DejaVu Sans"}):
+        fig = Figure(figsize=(width, height))
+        ax = fig.add_axes((0.0, 0.0, 1.0, 1.0))
+        ax.set_xlim(0.0, width)
+        ax.set_ylim(0.0, height)
+        ax.set_axis_off()
+        edges = [
+            (where[id(node)], where[id(child)]) for node, _, _ in placed for child in node.children
+        ]
+        ax.add_collection(LineCollection(edges, colors="#777777", linewidths=0.7, zorder=1))
+        for node, _, _ in placed:
+            px, py = where[id(node)]
+            ax.text(
+                px,
+                py,
+                _box_label(node),
+                ha="center",
+                va="center",
+                fontsize=_FONT,
+                zorder=3,
+                bbox=_box_style(node),
+                parse_math=False,  # a "$" in a name is a dollar sign
+            )
+        legend = [
+            Patch(facecolor=_FILL[SEQUENCE], edgecolor="#333333", label="→ Sequence"),
+            Patch(facecolor=_FILL[SELECTOR], edgecolor="#333333", label="? Selector"),
+            Patch(facecolor=_FILL[PARALLEL], edgecolor="#333333", label="⇉ Parallel"),
+            Patch(facecolor="white", edgecolor="#333333", linewidth=2.0, label="memory"),
+            Patch(facecolor=_FILL[CONDITION], edgecolor="#333333", label="◯ condition"),
+            Patch(facecolor=_FILL[CONTROLLER], edgecolor="#333333", label="▶ controller"),
+            Patch(facecolor=_FILL[ACTION], edgecolor="#333333", linestyle="--", label="■ action"),
+        ]
+        ax.legend(
+            handles=legend,
+            loc="upper left",
+            ncols=len(legend),
+            fontsize=_FONT,
+            frameon=False,
+            bbox_to_anchor=(_MARGIN / width, 1.0 - 0.05 / height),
+        )
+        if suffix == ".png":
+            dpi = min(dpi, _MAX_PIXELS / max(width, height))
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(path, dpi=dpi, format=suffix[1:])
+    return path
+
+
+# -- BehaviorTree.CPP v4 ----------------------------------------------------------------------
+BTCPP_BUILTINS = frozenset(
+    {
+        # controls
+        "Sequence",
+        "SequenceWithMemory",
+        "ReactiveSequence",
+        "Fallback",
+        "ReactiveFallback",
+        "Parallel",
+        "ParallelAll",
+        "IfThenElse",
+        "WhileDoElse",
+        "Switch2",
+        "Switch3",
+        "Switch4",
+        "Switch5",
+        "Switch6",
+        "ManualSelector",
+        "TryCatch",
+        # decorators
+        "Inverter",
+        "ForceSuccess",
+        "ForceFailure",
+        "KeepRunningUntilFailure",
+        "Repeat",
+        "RetryUntilSuccessful",
+        "Timeout",
+        "Delay",
+        "RunOnce",
+        "Precondition",
+        "LoopInt",
+        "LoopDouble",
+        "LoopString",
+        "LoopBool",
+        "SkipUnlessUpdated",
+        "WaitValueUpdate",
+        "SubTree",
+        # leaves
+        "AlwaysSuccess",
+        "AlwaysFailure",
+        "Script",
+        "ScriptCondition",
+        "SetBlackboard",
+        "UnsetBlackboard",
+        "Sleep",
+        "WasEntryUpdated",
+        "TestNode",
+        # not node types, but tags/IDs with a meaning in the file
+        "root",
+        "Root",
+        "BehaviorTree",
+        "TreeNodesModel",
+        "Action",
+        "Condition",
+        "Control",
+        "Decorator",
+    }
+)
+"""Tags BT.CPP v4 (or its file format) already gives a meaning: not used for custom types."""
+
+_DECORATORS = {
+    py_trees.decorators.Inverter: "Inverter",
+    py_trees.decorators.FailureIsSuccess: "ForceSuccess",
+    py_trees.decorators.SuccessIsFailure: "ForceFailure",
+    py_trees.decorators.SuccessIsRunning: "KeepRunningUntilFailure",
+}
+_RESERVED_PORTS = {"name", "ID"}
+_MODEL_CATEGORY = {
+    CONDITION: "Condition",
+    CONTROLLER: "Action",
+    ACTION: "Action",
+    DECORATOR: "Decorator",
+    COMPOSITE: "Control",
+}
+
+
+def bt_port_name(name: str) -> str:
+    """A name BT.CPP accepts as a port or blackboard entry: letters, digits and ``_``,
+    starting with a letter (``/state/pose`` -> ``state_pose``)."""
+    clean = re.sub(r"[^A-Za-z0-9_]+", "_", name).strip("_")
+    if not clean or not clean[0].isalpha():
+        clean = "p_" + clean
+    return clean
+
+
+_SIMPLE = (bool, int, float, str)
+
+
+def _is_simple(value: object) -> bool:
+    if isinstance(value, enum.Enum):
+        return isinstance(value.value, _SIMPLE)
+    return isinstance(value, _SIMPLE)
+
+
+def _text(value: object) -> str:
+    if isinstance(value, enum.Enum):
+        value = value.value
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int | float):
+        return repr(value)
+    return str(value).replace("{", "(").replace("}", ")")
+
+
+def _cpp_type(value: object) -> str:
+    if isinstance(value, bool):
+        return "bool"
+    if isinstance(value, int):
+        return "int"
+    if isinstance(value, float):
+        return "double"
+    return "std::string"
+
+
+def _param_values(name: str, value: object) -> list[tuple[str, object]]:
+    """``(attribute, simple value)`` pairs for one parameter (see the module docstring)."""
+    if value is None or (callable(value) and not dataclasses.is_dataclass(value)):
+        return []
+    if _is_simple(value):
+        return [(name, value)]
+    if isinstance(value, tuple | list) and all(_is_simple(v) for v in value):
+        return [(name, ";".join(_text(v) for v in value))]
+    ident = getattr(value, "id", None)
+    if isinstance(ident, str):
+        return [(name, ident)]
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        # flattened only when every field is simple: a record of numbers and words, not a model
+        pairs: list[tuple[str, object]] = []
+        for f in dataclasses.fields(value):
+            sub = getattr(value, f.name, None)
+            if f.name.startswith("_") or not f.compare or sub is None:
+                continue
+            if _is_simple(sub):
+                pairs.append((f"{name}_{f.name}", sub))
+            elif isinstance(sub, tuple | list) and all(_is_simple(v) for v in sub):
+                pairs.append((f"{name}_{f.name}", ";".join(_text(v) for v in sub)))
+            else:
+                return []
+        return pairs
+    return []
+
+
+def _parameters(node: Behaviour) -> dict[str, object]:
+    """The node's parameters as ``{attribute: simple value}``."""
+    raw: list[tuple[str, object]] = []
+    custom = getattr(node, "bt_ports", None)
+    if callable(custom):
+        for key, value in dict(custom()).items():
+            raw += _param_values(str(key), value)
+    else:
+        try:
+            signature = inspect.signature(type(node).__init__)
+        except (TypeError, ValueError):
+            signature = None
+        params = [] if signature is None else list(signature.parameters.values())[1:]
+        holders = [
+            v
+            for k, v in vars(node).items()
+            if not k.startswith("_") and dataclasses.is_dataclass(v) and not isinstance(v, type)
+        ]
+        for p in params:
+            if p.kind in (p.VAR_POSITIONAL, p.VAR_KEYWORD) or p.name == "name":
+                continue
+            if p.name in vars(node):
+                raw += _param_values(p.name, vars(node)[p.name])
+                continue
+            for holder in holders:
+                if p.name in {f.name for f in dataclasses.fields(holder)}:
+                    raw += _param_values(p.name, getattr(holder, p.name))
+                    break
+    params_out: dict[str, object] = {}
+    for key, value in raw:
+        port = bt_port_name(key)
+        if port not in _RESERVED_PORTS and port not in params_out:
+            params_out[port] = value
+    return params_out
+
+
+class _Model:
+    """The ``<TreeNodesModel>`` being built: one entry per custom type."""
+
+    def __init__(self) -> None:
+        self.ids: dict[type, str] = {}
+        self.category: dict[str, str] = {}
+        self.ports: dict[str, dict[str, tuple[str, str, str, str | None]]] = {}
+        self.key_ports: dict[str, str] = {}
+
+    def type_id(self, cls: type) -> str:
+        if cls not in self.ids:
+            base = cls.__name__
+            if base in BTCPP_BUILTINS:
+                base = "Walkaround" + base
+            ident, n = base, 1
+            taken = set(self.ids.values())
+            while ident in taken:
+                n += 1
+                ident = f"{base}_{n}"
+            self.ids[cls] = ident
+            self.ports[ident] = {}
+        return self.ids[cls]
+
+    def key_port(self, key_name: str) -> str:
+        """The port (and blackboard entry) of a walkaround key; distinct keys stay distinct."""
+        if key_name not in self.key_ports:
+            base = bt_port_name(key_name)
+            port, n = base, 1
+            while port in self.key_ports.values():
+                n += 1
+                port = f"{base}_{n}"
+            self.key_ports[key_name] = port
+        return self.key_ports[key_name]
+
+    def declare(
+        self, ident: str, port: str, direction: str, type_: str, text: str, default: str | None
+    ) -> None:
+        ports = self.ports[ident]
+        if port not in ports:
+            ports[port] = (direction, type_, text, default)
+        elif ports[port][1] != type_:
+            direction, _, text, default = ports[port]
+            ports[port] = (direction, "std::string", text, default)
+
+    def element(self) -> etree._Element:
+        model = etree.Element("TreeNodesModel")
+        for ident, category in self.category.items():
+            entry = etree.SubElement(model, category, ID=ident)
+            for port, (direction, type_, text, default) in self.ports[ident].items():
+                element = etree.SubElement(entry, direction, name=port, type=type_)
+                if default is not None:
+                    element.set("default", default)
+                element.text = text
+        return model
+
+
+def _leaf_attributes(node: Behaviour, ident: str, model: _Model) -> dict[str, str]:
+    attrs: dict[str, str] = {}
+    params = _parameters(node)
+    ports: dict[str, tuple[str, str]] = {}  # port -> (direction, key name)
+    if isinstance(node, Node):
+        reads = [k.name for k in node.reads]
+        writes = [k.name for k in node.writes]
+        for key in dict.fromkeys([*reads, *writes]):
+            direction = (
+                "inout_port"
+                if key in reads and key in writes
+                else ("input_port" if key in reads else "output_port")
+            )
+            ports[model.key_port(key)] = (direction, key)
+    for port, value in params.items():
+        if port in ports:
+            continue  # a blackboard port of the same name wins
+        attrs[port] = _text(value)
+        model.declare(ident, port, "input_port", _cpp_type(value), "parameter", None)
+    record_types = {}
+    if isinstance(node, Node):
+        record_types = {k.name: k.type.__name__ for k in (*node.reads, *node.writes)}
+    for port, (direction, key) in ports.items():
+        attrs[port] = "{" + port + "}"
+        model.declare(
+            ident,
+            port,
+            direction,
+            record_types.get(key, "std::string"),
+            f"blackboard {key}",
+            "{" + port + "}",
+        )
+    return attrs
+
+
+def _parallel_counts(node: py_trees.composites.Parallel) -> tuple[int, int]:
+    policy = node.policy
+    if isinstance(policy, py_trees.common.ParallelPolicy.SuccessOnAll):
+        return -1, 1
+    if isinstance(policy, py_trees.common.ParallelPolicy.SuccessOnOne):
+        return 1, 1
+    if isinstance(policy, py_trees.common.ParallelPolicy.SuccessOnSelected):
+        return len(policy.children), 1
+    raise TypeError(f"'{node.name}': no BT.CPP equivalent for {type(policy).__name__}")
+
+
+def _bt_element(node: Behaviour, model: _Model, keep_running_unselected: bool) -> etree._Element:
+    kind = _kind(node)
+    memory = _memory(node)
+    if kind == SEQUENCE:
+        element = etree.Element("Sequence" if memory else "ReactiveSequence", name=node.name)
+    elif kind == SELECTOR:
+        element = etree.Element("Fallback" if memory else "ReactiveFallback", name=node.name)
+    elif kind == PARALLEL:
+        success, failure = _parallel_counts(node)
+        element = etree.Element(
+            "Parallel",
+            name=node.name,
+            success_count=str(success),
+            failure_count=str(failure),
+        )
+    elif kind == DECORATOR and type(node) in _DECORATORS:
+        element = etree.Element(_DECORATORS[type(node)], name=node.name)
+    else:
+        ident = model.type_id(type(node))
+        model.category.setdefault(ident, _MODEL_CATEGORY[kind])
+        element = etree.Element(ident, name=node.name)
+        if kind not in (DECORATOR, COMPOSITE):
+            for port, value in _leaf_attributes(node, ident, model).items():
+                element.set(port, value)
+
+    selected: list[Behaviour] | None = None
+    if kind == PARALLEL and isinstance(
+        node.policy, py_trees.common.ParallelPolicy.SuccessOnSelected
+    ):
+        selected = list(node.policy.children)
+        if not keep_running_unselected and len(selected) < len(node.children):
+            names = ", ".join(_one_line(c.name) for c in selected)
+            while "--" in names:
+                names = names.replace("--", "- -")
+            element.append(
+                etree.Comment(
+                    f" py_trees SuccessOnSelected({names}): BT.CPP's Parallel counts the"
+                    " successes of any child and does not tick a finished child again; export"
+                    " with keep_running_unselected=True for the py_trees semantics "
+                )
+            )
+    for child in node.children:
+        sub = _bt_element(child, model, keep_running_unselected)
+        if keep_running_unselected and selected is not None and child not in selected:
+            wrapper = etree.Element("KeepRunningUntilFailure", name=f"keep running: {child.name}")
+            wrapper.append(sub)
+            sub = wrapper
+        element.append(sub)
+    return element
+
+
+def to_btcpp(
+    root: Behaviour, *, tree_id: str = "walkaround", keep_running_unselected: bool = False
+) -> str:
+    """BehaviorTree.CPP v4 XML of the tree (mapping in the module docstring), pretty-printed,
+    without an XML declaration (UTF-8). Groot2 opens it: every custom node type is declared
+    once in ``<TreeNodesModel>`` with its ports."""
+    model = _Model()
+    document = etree.Element("root", BTCPP_format="4", main_tree_to_execute=tree_id)
+    tree = etree.SubElement(document, "BehaviorTree", ID=tree_id)
+    tree.append(_bt_element(root, model, keep_running_unselected))
+    document.append(model.element())
+    return etree.tostring(document, pretty_print=True, encoding="unicode")

@@ -1,0 +1,163 @@
+"""The dry-run report folder (ARCHITECTURE.md §9).
+
+* ``metrics.json`` — outcome and reason; per checkpoint: reached, position and heading
+  error against ground truth, time, items inspected; collisions, minimum clearance,
+  e-stops, geofence breaches; tick timing; compile warnings.
+* ``events.jsonl`` — every controller switch with its reason, safety events, faults.
+* ``trajectory.png`` — top view: aircraft, zones, obstacles, the path coloured by the
+  active controller, checkpoints with their achieved error.
+* ``timeline.png`` — controller, v, omega and the closest obstacle against r_ES and
+  r_OA-trigger over time.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+from dataclasses import asdict
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+
+from executive.dryrun import DryRun
+from sim2d.view import draw_world
+
+PALETTE = plt.get_cmap("tab10")
+
+
+def metrics(run: DryRun) -> dict[str, object]:
+    """The run's figures as a JSON-ready dict."""
+    result = run.result
+    truth = run.robot.truth
+    clearances = [s.clearance for s in run.samples if math.isfinite(s.clearance)]
+    estops = [
+        e for e in result.events if e.kind == "safety" and e.detail.get("kind") == "estop-latched"
+    ]
+    reached = [c for c in run.checkpoints if c.reached and c.position_error is not None]
+    simulated = run.robot.time
+    return {
+        "mission": run.scenario.mission.id,
+        "scenario": run.scenario.id,
+        "seed": run.scenario.seed,
+        "outcome": result.outcome,
+        "succeeded": run.succeeded,
+        "reason": result.reason,
+        "traceback": result.traceback,
+        "simulated_s": round(simulated, 2),
+        "wall_s": round(run.wall_time, 2),
+        "speed_up": round(simulated / run.wall_time, 1) if run.wall_time > 0 else None,
+        "checkpoints": [asdict(c) for c in run.checkpoints],
+        "checkpoints_reached": sum(c.reached for c in run.checkpoints),
+        "checkpoints_total": len(run.checkpoints),
+        "max_position_error": max((c.position_error for c in reached), default=None),
+        "max_heading_error_deg": max((c.heading_error_deg for c in reached), default=None),
+        "items_inspected": len(result.progress.results),
+        "items_detected": sum(r.detected for r in result.progress.results),
+        "collisions": [
+            {"t": round(c.time, 2), "with": c.other, "at": [round(c.x, 2), round(c.y, 2)]}
+            for c in truth.collisions
+        ],
+        "min_clearance": round(min(clearances), 3) if clearances else None,
+        "estops": len(estops),
+        "geofence_breaches": [{"t": round(t, 2), "zone": z} for t, z in run.breaches],
+        "tick_timing": result.stats.summary(),
+        "warnings": run.warnings,
+        "resumed_after": list(run.resumed_from),
+    }
+
+
+def write_report(run: DryRun, out: Path) -> Path:
+    """Write the report folder; returns its path."""
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "metrics.json").write_text(json.dumps(metrics(run), indent=2) + "\n", encoding="utf-8")
+    with (out / "events.jsonl").open("w", encoding="utf-8") as handle:
+        for event in run.result.events:
+            handle.write(json.dumps(event.as_dict(), separators=(",", ":")) + "\n")
+    trajectory(run, out / "trajectory.png")
+    timeline(run, out / "timeline.png")
+    return out
+
+
+def _controller_colours(run: DryRun) -> dict[str, object]:
+    names = sorted({s.controller.split(" to ")[0] for s in run.samples})
+    return {name: PALETTE(i % 10) for i, name in enumerate(names)}
+
+
+def trajectory(run: DryRun, path: Path) -> None:
+    fig, ax = plt.subplots(figsize=(10, 10), dpi=110)
+    draw_world(ax, run.robot, scans=False, cameras=False)
+    colours = _controller_colours(run)
+    samples = run.samples
+    for a, b in itertools.pairwise(samples):
+        kind = a.controller.split(" to ")[0]
+        ax.plot([a.true.x, b.true.x], [a.true.y, b.true.y], color=colours[kind], lw=1.6, zorder=6)
+    for name, colour in colours.items():
+        ax.plot([], [], color=colour, lw=2, label=name)
+    true = run.scenario.true_placement()
+    for cp, outcome in zip(run.scenario.mission.checkpoints, run.checkpoints, strict=True):
+        pose = true.pose_to_airport(cp.pose)
+        if outcome.position_error is not None:
+            label = (
+                f"{cp.id} {outcome.position_error * 100:.0f} cm {outcome.heading_error_deg:.1f}°"
+            )
+        else:
+            label = f"{cp.id} {'(resumed)' if outcome.reached else 'not reached'}"
+        ax.annotate(label, (pose.x, pose.y), fontsize=5, xytext=(4, -8), textcoords="offset points")
+    for t, zone in run.breaches:
+        s = min(samples, key=lambda s: abs(s.t - t))
+        ax.plot(s.true.x, s.true.y, "rx", ms=10, mew=2)
+        ax.annotate(f"breach {zone}", (s.true.x, s.true.y), color="red", fontsize=7)
+    for c in run.robot.truth.collisions:
+        s = min(samples, key=lambda s: abs(s.t - c.time))
+        ax.plot(s.true.x, s.true.y, "k*", ms=12)
+    ax.legend(loc="upper right", fontsize=7, title="controller")
+    ax.set_aspect("equal")
+    ax.autoscale_view()
+    ax.set_xlabel("x east (m)")
+    ax.set_ylabel("y north (m)")
+    ax.set_title(
+        f"{run.scenario.mission.id} — {run.scenario.id}: {run.result.outcome} "
+        f"({run.result.reason})",
+        fontsize=9,
+    )
+    ax.grid(True, lw=0.3, alpha=0.5)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def timeline(run: DryRun, path: Path) -> None:
+    samples = run.samples
+    if not samples:
+        return
+    t = np.array([s.t for s in samples])
+    safety = run.scenario.mission.safety
+    fig, axes = plt.subplots(4, 1, figsize=(11, 8), dpi=100, sharex=True)
+    colours = _controller_colours(run)
+    names = list(colours)
+    idx = np.array([names.index(s.controller.split(" to ")[0]) for s in samples])
+    axes[0].scatter(t, idx, c=[colours[names[i]] for i in idx], s=2)
+    axes[0].set_yticks(range(len(names)), names, fontsize=6)
+    axes[0].set_ylabel("controller")
+    axes[1].plot(t, [s.v for s in samples], lw=0.8)
+    axes[1].set_ylabel("v (m/s)")
+    axes[2].plot(t, [s.omega for s in samples], lw=0.8)
+    axes[2].set_ylabel("omega (rad/s)")
+    r_c = np.array([min(s.r_c, 30.0) for s in samples])
+    axes[3].plot(t, r_c, lw=0.8, label="r_c (lasers)")
+    axes[3].axhline(safety.r_es, color="red", ls="--", lw=0.8, label="r_ES")
+    axes[3].axhline(safety.r_oa_trigger, color="orange", ls="--", lw=0.8, label="r_OA-trigger")
+    axes[3].set_ylim(0, max(6.0, safety.r_oa_trigger * 2))
+    axes[3].set_ylabel("closest (m)")
+    axes[3].legend(fontsize=7, loc="upper right")
+    axes[3].set_xlabel("simulated time (s)")
+    for ax in axes:
+        ax.grid(True, lw=0.3, alpha=0.5)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)

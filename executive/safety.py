@@ -1,0 +1,993 @@
+"""The runtime safety layer: the last word on every command sent (ARCHITECTURE.md §3, §8).
+
+The behaviour tree proposes one :class:`VelocityCommand` per tick; :meth:`SafetyLayer.filter`
+turns it into the command that is actually sent. The layer is pure Python (numpy, shapely):
+no py_trees, no simulator, so it can be tested on its own.
+
+Order of the checks (each later rule only ever sees what the earlier ones let through, so
+the e-stop, faults and the geofence always win over the tree):
+
+0. **Operator reset** (``reset_requested``, a level: honoured on every call where it is
+   set and the conditions allow). It clears a fault signalled on an *earlier* call, releases
+   a bumper latch once the bumper is released, and releases an obstacle latch at once if
+   the zone is clear (otherwise the obstacle latch stays, see 2.).
+1. **Non-finite command**: a NaN or infinite v, omega or pan/tilt rate is a controller bug;
+   it is handled like :meth:`SafetyLayer.fault` (zero, ``fault-stop``, latched until reset).
+2. **E-stop latch**: latched when ``obstacles.closest < r_es`` (a NaN distance counts as
+   inside) or a bumper is pressed. A latch caused only by obstacles releases by itself
+   once ``closest >= r_es`` has been observed for ``safety.estop_hold`` seconds. Once a
+   bumper has been pressed the latch releases only by an operator reset, and only while
+   the bumper is released; if an obstacle is still inside r_es at that moment the latch
+   becomes an obstacle latch. While latched every command is exactly zero.
+3. **Faults and stale data**: a :meth:`fault` (an exception in a tick, a lost bus, a
+   non-finite command) stops the robot until an operator reset. Stale data stops it only
+   while it lasts: a configured laser with no scan or a scan older than ``stale_after``
+   (default: three periods of the slowest laser; every scan in the frame is checked too),
+   an obstacle estimate that is missing or older than ``stale_after``, a missing or
+   non-finite pose estimate.
+4. **Slowdown zone** (like Nav2's collision monitor): while ``r_c < r_oa_trigger`` the
+   requested forward speed is scaled by ``s = clamp((r_c - r_es) / (r_oa - r_es), floor, 1)``.
+   The floor (``slowdown_floor``, default 0.2) keeps obstacle avoidance able to creep round
+   an obstacle; the e-stop takes over below r_es anyway. Only v is scaled, in both
+   directions; omega and the pan/tilt rates are not.
+5. **Magnitude limits**: |v| <= max_speed, |omega| <= max_angular_speed, each pan/tilt rate
+   within its camera's pan_rate / tilt_rate; a rate for an unknown unit is dropped. Every
+   output names every platform unit (zero when the tree gave no rate).
+6. **Rate limits**, with respect to the previously *sent* command and the fixed ``period``:
+   |dv/dt| <= max_acceleration, |d2v/dt2| <= max_jerk (v follows a jerk-limited profile
+   that never overshoots its target when that can be avoided), |domega/dt| <=
+   max_angular_acceleration. Pan/tilt rates have no rate limit.
+7. **Geofence** (forbidden zones are never entered), from the estimated pose and the
+   robot's footprint (length x width rectangle centred at the axle). Airport-frame zones
+   are used as they are, aircraft-frame zones through the current placement
+   (:meth:`set_placement`). For a candidate output o, S(o) is the distance any footprint
+   point can travel during this period and during the full stop that follows it when the
+   layer brakes at its own limits (jerk-limited v, acceleration-limited omega, corners at
+   radius r_corner): ``S = (|v| + r_corner |omega|) dt + sweep_v(v, a) + r_corner sweep_w``.
+   This is the discrete, jerk-aware form of ``v_allowed = sqrt(2 a max(0, d - margin))``
+   (which it becomes as jerk -> inf and dt -> 0).
+
+   * soft rule, per zone and directional: a candidate that brings the footprint closer to
+     a zone (predicted over a short horizon for its v and omega) must keep
+     ``S <= d_zone - geofence_margin``; otherwise it is blended towards the braking step.
+     Inside the margin a motion that brings the footprint closer is refused: a variant
+     without its rotation (or without its translation) is used if that one does not
+     approach, else the robot brakes. Motions that increase or keep the distance are
+     allowed, so the robot can always back out.
+   * hard rule, isotropic: every output keeps ``S <= d_min - geofence_buffer``. This is an
+     invariant: if it held on the previous period, braking at the limits keeps it. It can
+     only be lost by a jump (pose estimate, placement, a start inside the buffer); then
+     the robot may still back out at a crawl (``S <= escape_sweep``) or brake at its
+     limits when that stops it before the zone, and otherwise it is stopped at once
+     (``geofence-stop``, an emergency).
+
+**Stopping is always possible**: an e-stop, a fault, stale data or a geofence emergency
+outputs zero at once, even when that exceeds the deceleration (and jerk) limits: the
+platform brakes. Every other slowdown (slowdown zone, geofence slow/stop) respects the
+limits. After a stop the limits apply again from rest.
+
+**Events** (:attr:`SafetyLayer.events`, append-only, drained by the runtime): one per change
+of state, not one per tick: ``estop-latched`` / ``estop-released`` / ``estop-reset`` /
+``reset-refused``, ``fault-stop``, ``stale-sensor`` / ``sensor-fresh``, ``slowdown`` /
+``slowdown-end``, ``geofence-slow`` / ``geofence-stop`` / ``geofence-clear``, ``limit`` /
+``limit-end`` (only the magnitude limits: the tree asked for more than the platform can
+do; acceleration and jerk smoothing is normal and not logged). A state that eases off
+(geofence, slowdown, limit) is reported only after it stayed eased for ``event_hold``
+seconds, so riding a boundary does not flood the log.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass
+
+import numpy as np
+import shapely
+from shapely.geometry import Point
+from shapely.geometry.base import BaseGeometry
+
+from executive.core.frames import AircraftPlacement, FloatArray
+from executive.core.model import Circle, ForbiddenZone, Frame, Mission
+from executive.core.records import (
+    Obstacles,
+    PanTiltRate,
+    PoseEstimate,
+    SensorFrame,
+    VelocityCommand,
+)
+
+# event kinds
+ESTOP_LATCHED = "estop-latched"
+ESTOP_RELEASED = "estop-released"
+ESTOP_RESET = "estop-reset"
+RESET_REFUSED = "reset-refused"
+FAULT_STOP = "fault-stop"
+STALE_SENSOR = "stale-sensor"
+SENSOR_FRESH = "sensor-fresh"
+SLOWDOWN = "slowdown"
+SLOWDOWN_END = "slowdown-end"
+GEOFENCE_SLOW = "geofence-slow"
+GEOFENCE_STOP = "geofence-stop"
+GEOFENCE_CLEAR = "geofence-clear"
+LIMIT = "limit"
+LIMIT_END = "limit-end"
+
+_CIRCLE_SEGMENTS = 16  # per quarter circle; zone circles are circumscribed, never smaller
+_TOL = 1e-9
+
+
+@dataclass(frozen=True, slots=True)
+class SafetyEvent:
+    """A change of the safety layer's state at ``stamp``, with its reason and value."""
+
+    stamp: float
+    kind: str
+    reason: str
+    value: float | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class SafetyStatus:
+    """The layer's state after the last :meth:`SafetyLayer.filter`.
+
+    ``stopped_reason`` says why the layer holds (or brings) the robot to a stop: e-stop,
+    fault, stale data or the geofence; None while the tree's command goes through
+    (possibly limited). ``speed_scale`` is the slowdown-zone factor (1 outside it).
+    ``geofence_distance`` is the footprint's clearance to the nearest forbidden zone
+    (negative: overlapping it; inf: no zone or no pose; beyond a few metres only a lower
+    bound) and ``geofence_zone`` that zone. ``forced_stop`` is True when the output was
+    forced to zero regardless of the deceleration limits (e-stop, fault, stale data,
+    geofence emergency).
+    """
+
+    estop_latched: bool = False
+    estop_cause: str | None = None
+    stopped_reason: str | None = None
+    speed_scale: float = 1.0
+    geofence_distance: float = math.inf
+    geofence_zone: str | None = None
+    forced_stop: bool = False
+
+
+# -- motion limits --------------------------------------------------------------------------------
+class MotionLimits:
+    """Jerk-limited forward speed and acceleration-limited yaw rate, one period at a time.
+
+    ``step_v`` moves (v, a) towards a target speed: the acceleration changes by at most
+    ``J dt`` per period and stays within ``+-A``, and it is chosen as large as possible
+    while the speed can still reach the target without overshooting it (ramping the
+    acceleration back to zero at the jerk limit). ``linear_sweep`` and ``angular_sweep``
+    are the exact distances (angles) covered by the braking sequence that ``step_v`` /
+    ``step_w`` produce with a zero target: the geofence relies on them.
+    """
+
+    def __init__(
+        self,
+        period: float,
+        max_speed: float,
+        max_acceleration: float,
+        max_jerk: float,
+        max_angular_speed: float,
+        max_angular_acceleration: float,
+    ) -> None:
+        if not period > 0.0:
+            raise ValueError(f"period must be positive, got {period}")
+        self.dt = float(period)
+        self.v_max = float(max_speed)
+        self.a_max = float(max_acceleration)
+        self.w_max = float(max_angular_speed)
+        self.alpha_max = float(max_angular_acceleration)
+        # change of acceleration per period; a jerk limit looser than 2A/dt never binds
+        self.da = min(max_jerk * self.dt, 2.0 * self.a_max)
+        self.max_jerk = self.da / self.dt
+        self.dw = self.alpha_max * self.dt
+        self._v_land = self.reach(self.a_max)
+        # sweep_bound: the sweep from full forward acceleration on a grid of speeds
+        self._grid = max(self.v_max, 1e-3) / 200.0
+        self._bound = [self.linear_sweep(k * self._grid, self.a_max) for k in range(203)]
+
+    # a*(e): the largest acceleration from which a speed change e can still be completed
+    def reach(self, a: float) -> float:
+        """Speed change while applying ``a >= 0`` now, then ramping it down to zero."""
+        s = self.da
+        n = max(0, math.ceil(a / s - 1e-12) - 1)
+        return self.dt * ((n + 1) * a - s * n * (n + 1) / 2.0)
+
+    def a_star(self, e: float) -> float:
+        """The largest ``a >= 0`` with ``reach(a) <= e`` (e >= 0)."""
+        if e <= 0.0:
+            return 0.0
+        s, dt = self.da, self.dt
+        q = e / (dt * s)
+        n = max(0, math.ceil(math.sqrt(2.0 * q + 0.25) - 1.5))
+        while n > 0 and q <= n * (n + 1) / 2.0:
+            n -= 1
+        while q > (n + 1) * (n + 2) / 2.0:
+            n += 1
+        return (e / dt + s * n * (n + 1) / 2.0) / (n + 1)
+
+    def step_v(self, v: float, a: float, target: float) -> tuple[float, float]:
+        """One period of the jerk-limited speed profile: (v, a) -> (v', a')."""
+        lo = max(-self.a_max, a - self.da)
+        hi = min(self.a_max, a + self.da)
+        e = target - v
+        want = self.a_star(e) if e >= 0.0 else -self.a_star(-e)
+        a_new = min(max(want, lo), hi)
+        v_new = v + a_new * self.dt
+        if abs(v_new - target) <= 1e-12:
+            v_new = target
+        return v_new, a_new
+
+    def step_w(self, w: float, target: float) -> float:
+        """One period of the acceleration-limited yaw rate."""
+        return w + min(max(target - w, -self.dw), self.dw)
+
+    def linear_sweep(self, v: float, a: float) -> float:
+        """Distance travelled after this period while braking to rest with ``step_v``.
+
+        The same sequence as repeated ``step_v(v, a, 0)``, with its regular stretches (the
+        jerk ramp, the constant deceleration, the final landing) summed in closed form.
+        """
+        if v < 0.0 or (v == 0.0 and a < 0.0):
+            v, a = -v, -a
+        dt, big_a, s = self.dt, self.a_max, self.da
+        v_ramp = self._v_land + big_a * dt
+        total = 0.0
+        for _ in range(100000):
+            if v > v_ramp and a > -big_a:
+                # ramp the acceleration down towards -A while the landing cannot bind
+                m = math.ceil((a + big_a) / s - 1e-12) - 1
+                if m >= 1:
+                    v_end = v + dt * (m * a - s * m * (m + 1) / 2.0)
+                    if v_end > v_ramp:
+                        total += dt * (m * v + dt * (m * a * (m + 1) / 2.0 - s * _tri2(m)))
+                        v, a = v_end, a - m * s
+            if a == -big_a and v > self._v_land:
+                k = math.floor((v - self._v_land) / (big_a * dt))
+                if k >= 1:
+                    total += dt * (k * v - big_a * dt * k * (k + 1) / 2.0)
+                    v -= k * big_a * dt
+            # one step of step_v(v, a, 0), or the whole landing when it is reachable
+            lo = max(-big_a, a - s)
+            hi = min(big_a, a + s)
+            mag = self.a_star(abs(v))
+            want = -mag if v > 0.0 else mag
+            if lo <= want <= hi:
+                k = 1
+                while mag - k * s > 0.0:
+                    total += dt * self.reach(mag - k * s)
+                    k += 1
+                break
+            a = min(max(want, lo), hi)
+            v += a * dt
+            total += abs(v) * dt
+        return total
+
+    def sweep_bound(self, v: float) -> float:
+        """An upper bound of ``linear_sweep(v, a)`` for any ``|a| <= A``, from a table.
+
+        The sweep grows with the speed and with the acceleration in the direction of
+        motion (checked by the tests), so the entry at full acceleration and the next grid
+        speed bounds it.
+        """
+        k = math.ceil(abs(v) / self._grid - 1e-12)
+        if k < len(self._bound):
+            return self._bound[k] + 1e-9
+        return self.linear_sweep(abs(v), self.a_max) + 1e-9
+
+    def angular_sweep(self, w: float) -> float:
+        """Angle turned after this period while braking the yaw rate to rest."""
+        w = abs(w)
+        if w <= 0.0:
+            return 0.0
+        n = math.ceil(w / self.dw - 1e-12) - 1
+        return self.dt * (n * w - self.dw * n * (n + 1) / 2.0)
+
+
+def _tri2(m: int) -> float:
+    """sum_{j=1..m} j (j + 1) / 2."""
+    return m * (m + 1) * (m + 2) / 6.0
+
+
+# -- geofence geometry ----------------------------------------------------------------------------
+class _ZoneSet:
+    """Forbidden zones in the airport frame as (prepared) shapely geometries."""
+
+    def __init__(self, zones: Iterable[ForbiddenZone], placement: AircraftPlacement) -> None:
+        self.ids: list[str] = []
+        geoms: list[BaseGeometry] = []
+        for zone in zones:
+            geoms.append(_zone_geometry(zone, placement))
+            self.ids.append(zone.id)
+        self.geoms = np.array(geoms, dtype=object)
+        shapely.prepare(self.geoms)
+        self.bounds = shapely.bounds(self.geoms) if geoms else np.zeros((0, 4))
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+
+def _zone_geometry(zone: ForbiddenZone, placement: AircraftPlacement) -> BaseGeometry:
+    shape = zone.shape
+    to_a = zone.frame == Frame.AIRCRAFT
+    if isinstance(shape, Circle):
+        cx, cy = shape.cx, shape.cy
+        if to_a:
+            cx, cy = (float(c) for c in placement.to_airport_xy((cx, cy)))
+        # circumscribe the circle so the polygon contains it
+        radius = shape.radius / math.cos(math.pi / (4 * _CIRCLE_SEGMENTS))
+        return Point(cx, cy).buffer(radius, quad_segs=_CIRCLE_SEGMENTS)
+    pts = np.asarray(shape.points, dtype=float)
+    if to_a:
+        pts = placement.to_airport_xy(pts)
+    return shapely.polygons(pts)
+
+
+def footprint_corners(length: float, width: float) -> FloatArray:
+    """The closed ring of the footprint rectangle in the robot frame (5, 2)."""
+    hl, hw = length / 2.0, width / 2.0
+    return np.array([[hl, hw], [-hl, hw], [-hl, -hw], [hl, -hw], [hl, hw]])
+
+
+def predict_pose(x: float, y: float, th: float, v: float, w: float, h: float) -> tuple:
+    """The unicycle pose after ``h`` seconds at constant (v, w), integrated exactly."""
+    if abs(w) < 1e-9:
+        return x + v * h * math.cos(th), y + v * h * math.sin(th), th
+    r = v / w
+    th2 = th + w * h
+    return x + r * (math.sin(th2) - math.sin(th)), y - r * (math.cos(th2) - math.cos(th)), th2
+
+
+class _Candidate:
+    """An output under consideration: forward speed and acceleration, yaw rate."""
+
+    __slots__ = ("a", "sweep", "v", "w")
+
+    def __init__(self, v: float, a: float, w: float) -> None:
+        self.v, self.a, self.w = v, a, w
+        self.sweep = math.nan
+
+    def blend(self, other: _Candidate, lam: float, v0: float, dt: float) -> _Candidate:
+        a = self.a + lam * (other.a - self.a)
+        return _Candidate(v0 + a * dt, a, self.w + lam * (other.w - self.w))
+
+    @property
+    def is_zero(self) -> bool:
+        return self.v == 0.0 and self.w == 0.0
+
+
+class _Monitor:
+    """Reports a level as events: rises at once, falls after ``hold`` seconds."""
+
+    def __init__(self, hold: float) -> None:
+        self.hold = hold
+        self.level = 0
+        self._low_since: float | None = None
+
+    def update(self, now: float, level: int) -> int | None:
+        """The newly reported level, or None when nothing is to be reported."""
+        if level > self.level:
+            self.level, self._low_since = level, None
+            return level
+        if level == self.level:
+            self._low_since = None
+            return None
+        if self._low_since is None:
+            self._low_since = now
+        if now - self._low_since >= self.hold:
+            self.level, self._low_since = level, None
+            return level
+        return None
+
+
+_NONE, _SLOW, _STOP, _EMERGENCY = 0, 1, 2, 3
+
+
+# -- the layer ------------------------------------------------------------------------------------
+class SafetyLayer:
+    """Filters every command of the tree before it is sent; see the module docstring."""
+
+    def __init__(
+        self,
+        mission: Mission,
+        placement: AircraftPlacement,
+        period: float,
+        *,
+        stale_after: float | None = None,
+        geofence_margin: float = 0.3,
+        geofence_buffer: float = 0.05,
+        escape_sweep: float = 0.05,
+        slowdown_floor: float = 0.2,
+        horizon: float | None = None,
+        event_hold: float = 0.5,
+    ) -> None:
+        platform = mission.platform
+        self.mission = mission
+        self.period = float(period)
+        self.limits = MotionLimits(
+            period,
+            platform.max_speed,
+            platform.max_acceleration,
+            platform.max_jerk,
+            platform.max_angular_speed,
+            platform.max_angular_acceleration,
+        )
+        self.safety = mission.safety
+        self.lasers = tuple(platform.lasers)
+        if stale_after is None:
+            rates = [spec.rate_hz for spec in platform.lasers.values() if spec.rate_hz > 0]
+            stale_after = 3.0 / min(rates) if rates else 3.0 * self.period
+        self.stale_after = float(stale_after)
+        self.margin = float(geofence_margin)
+        self.buffer = min(float(geofence_buffer), self.margin)
+        self.escape_sweep = float(escape_sweep)
+        self.slowdown_floor = float(slowdown_floor)
+        self.horizon = float(horizon) if horizon is not None else max(2.0 * self.period, 0.1)
+        self.rates = {
+            cid: (spec.pan_rate, spec.tilt_rate) for cid, spec in platform.cameras.items()
+        }
+        self.corners = footprint_corners(platform.length, platform.width)
+        self._corner_x, self._corner_y = self.corners[:, 0], self.corners[:, 1]
+        self.r_corner = math.hypot(platform.length / 2.0, platform.width / 2.0)
+        # beyond this clearance no output can be restricted by the geofence
+        lim = self.limits
+        worst = self._sweep(_Candidate(lim.v_max, lim.a_max, lim.w_max))
+        self._far = 1.25 * worst + self.margin + 0.5
+        self.relevance = self._far + self.horizon * (lim.v_max + self.r_corner * lim.w_max)
+
+        self._airport_zones = [z for z in mission.airport.zones if z.frame != Frame.AIRCRAFT]
+        self._aircraft_zones = [z for z in mission.airport.zones if z.frame == Frame.AIRCRAFT]
+        self._static = _ZoneSet(self._airport_zones, placement)
+        self._placement: AircraftPlacement | None = None
+        self._moving = _ZoneSet((), placement)
+        self.set_placement(placement)
+
+        self.events: list[SafetyEvent] = []
+        self.status = SafetyStatus()
+        # last sent command
+        self._v = 0.0
+        self._a = 0.0
+        self._w = 0.0
+        self._rest_sweep = 0.0  # sweep after the last output's own period (NaN: unknown)
+        # e-stop latch
+        self._latched = False
+        self._cause: str | None = None
+        self._estop_reason: str | None = None
+        self._clear_since: float | None = None
+        self._reset_before = False
+        # fault latch and stale data
+        self._fault: str | None = None
+        self._fault_stamp = -math.inf
+        self._stale: dict[str, str] = {}
+        # reported states
+        self._geo_monitor = _Monitor(event_hold)
+        self._slow_monitor = _Monitor(event_hold)
+        self._limit_monitor = _Monitor(event_hold)
+        self._limits_reported: set[str] = set()
+
+    # -- public API -------------------------------------------------------------------------------
+    def set_placement(self, placement: AircraftPlacement) -> None:
+        """The executive's current estimate of where the aircraft stands."""
+        if placement == self._placement:
+            return
+        self._placement = placement
+        self._moving = _ZoneSet(self._aircraft_zones, placement)
+        geoms = np.concatenate([self._static.geoms, self._moving.geoms])
+        self._zone_ids = self._static.ids + self._moving.ids
+        self._zone_geoms = geoms
+        bounds = np.concatenate([self._static.bounds, self._moving.bounds])
+        self._bounds_list = [tuple(float(v) for v in row) for row in bounds]
+
+    @property
+    def placement(self) -> AircraftPlacement:
+        """The aircraft placement the aircraft-frame zones are enforced with."""
+        assert self._placement is not None
+        return self._placement
+
+    @property
+    def zone_geometries(self) -> dict[str, BaseGeometry]:
+        """The forbidden zones as enforced now (airport frame), by id."""
+        return dict(zip(self._zone_ids, self._zone_geoms, strict=True))
+
+    def fault(self, now: float, reason: str) -> None:
+        """Latch a fault stop (an exception in a tick, a lost bus): zero until reset."""
+        if self._fault is None or self._fault != reason:
+            self._emit(now, FAULT_STOP, reason)
+        self._fault_stamp = now
+        self._fault = reason
+
+    def drain_events(self) -> list[SafetyEvent]:
+        """The events since the last drain (and forget them)."""
+        out = list(self.events)
+        self.events.clear()
+        return out
+
+    def filter(
+        self,
+        command: VelocityCommand,
+        *,
+        now: float,
+        frame: SensorFrame,
+        pose: PoseEstimate | None,
+        obstacles: Obstacles | None,
+        reset_requested: bool = False,
+    ) -> VelocityCommand:
+        """The command to send for the tree's ``command``; see the module docstring."""
+        rising = reset_requested and not self._reset_before
+        self._reset_before = reset_requested
+        # 0. operator reset of a fault signalled before this call
+        if reset_requested and self._fault is not None and self._fault_stamp < now:
+            self._emit(now, ESTOP_RESET, f"operator reset: fault cleared ({self._fault})")
+            self._fault = None
+        # 1. a non-finite command is a fault
+        bad = _non_finite(command)
+        if bad is not None:
+            self.fault(now, f"non-finite command: {bad}")
+        # 2. e-stop latch
+        self._update_estop(now, frame, obstacles, reset_requested, rising)
+        # 3. stale data
+        self._update_stale(now, frame, pose, obstacles)
+        stop = self._stop_reason()
+        scale = self._slowdown(now, obstacles)
+        xy = _pose_tuple(pose)
+        if stop is not None:
+            self._v = self._a = self._w = 0.0
+            self._rest_sweep = 0.0
+            d_min, zone = self._nearest(self._zone_clearance(xy))
+            self._geofence_event(now, _NONE, zone, d_min, "")
+            self._limit_events(now, set())
+            self.status = SafetyStatus(
+                self._latched, self._cause, stop, scale, d_min, zone, forced_stop=True
+            )
+            return self._zero()
+
+        # 4.-5. slowdown and magnitude limits
+        lim = self.limits
+        clipped: set[str] = set()
+        vt = command.v * scale
+        if abs(vt) > lim.v_max:
+            clipped.add("speed")
+            vt = math.copysign(lim.v_max, vt)
+        wt = command.omega
+        if abs(wt) > lim.w_max:
+            clipped.add("angular speed")
+            wt = math.copysign(lim.w_max, wt)
+        pan_tilt = self._pan_tilt(command.pan_tilt, clipped)
+        self._limit_events(now, clipped)
+
+        # 6. rate limits: the tree's candidate and the braking step
+        v0, a0, w0 = self._v, self._a, self._w
+        vc, ac = lim.step_v(v0, a0, vt)
+        vb, ab = lim.step_v(v0, a0, 0.0)
+        cand = _Candidate(vc, ac, lim.step_w(w0, wt))
+        brake = _Candidate(vb, ab, lim.step_w(w0, 0.0))
+        if not math.isnan(self._rest_sweep):
+            # S(brake) = S(last output) - its own period: the exact recursion of the sweep
+            brake.sweep = self._rest_sweep
+
+        # 7. geofence
+        out, level, why, d_min, zone = self._geofence(xy, cand, brake)
+        self._geofence_event(now, level, zone, d_min, why)
+
+        if level == _EMERGENCY:
+            self._v = self._a = self._w = 0.0
+            self._rest_sweep = 0.0
+            out_cmd = self._zero()
+        else:
+            self._v, self._a, self._w = out.v, out.a, out.w
+            self._rest_sweep = out.sweep - (abs(out.v) + self.r_corner * abs(out.w)) * lim.dt
+            out_cmd = VelocityCommand(out.v, out.w, pan_tilt)
+        stopped = f"geofence: {why}" if level >= _STOP else None
+        self.status = SafetyStatus(
+            self._latched,
+            self._cause,
+            stopped,
+            scale,
+            d_min,
+            zone,
+            forced_stop=level == _EMERGENCY,
+        )
+        return out_cmd
+
+    # -- e-stop, faults, stale data ---------------------------------------------------------------
+    def _update_estop(
+        self,
+        now: float,
+        frame: SensorFrame,
+        obstacles: Obstacles | None,
+        reset: bool,
+        rising: bool,
+    ) -> None:
+        r_es = self.safety.r_es
+        bumper = frame.bumpers.any
+        closest = obstacles.closest if obstacles is not None else None
+        near = closest is not None and not closest >= r_es  # NaN counts as near
+        if bumper or near:
+            cause = "bumper" if bumper or self._cause == "bumper" else "obstacle"
+            if bumper:
+                sides = [s for s in ("front", "rear") if getattr(frame.bumpers, s)]
+                reason, value = f"{' and '.join(sides)} bumper pressed", None
+            else:
+                reason = f"obstacle at {closest:.2f} m < r_ES {r_es:.2f} m"
+                value = closest
+            if not self._latched or cause != self._cause:
+                self._emit(now, ESTOP_LATCHED, reason, value)
+                self._estop_reason = reason
+            self._latched, self._cause = True, cause
+            self._clear_since = None
+        if not self._latched:
+            return
+        if self._cause == "bumper":
+            if reset and not bumper:
+                if near:
+                    self._cause = "obstacle"
+                    self._clear_since = None
+                    self._emit(
+                        now,
+                        ESTOP_RESET,
+                        "operator reset of the bumper latch; an obstacle is still inside "
+                        f"r_ES ({closest:.2f} m): held until it is clear",
+                        closest,
+                    )
+                else:
+                    self._release(now, ESTOP_RESET, "operator reset (bumper released)")
+            elif rising and bumper:
+                self._emit(now, RESET_REFUSED, "reset refused: a bumper is still pressed")
+            return
+        # obstacle latch
+        if near or obstacles is None:
+            self._clear_since = None
+            return
+        if reset:
+            self._release(now, ESTOP_RESET, "operator reset (zone clear)", closest)
+            return
+        if self._clear_since is None:
+            self._clear_since = now
+        if now - self._clear_since >= self.safety.estop_hold:
+            self._release(
+                now,
+                ESTOP_RELEASED,
+                f"zone clear for {self.safety.estop_hold:g} s (r_c {closest:.2f} m)",
+                closest,
+            )
+
+    def _release(self, now: float, kind: str, reason: str, value: float | None = None) -> None:
+        self._latched, self._cause, self._estop_reason, self._clear_since = (
+            False,
+            None,
+            None,
+            None,
+        )
+        self._emit(now, kind, reason, value)
+
+    def _update_stale(
+        self,
+        now: float,
+        frame: SensorFrame,
+        pose: PoseEstimate | None,
+        obstacles: Obstacles | None,
+    ) -> None:
+        limit = self.stale_after
+        stale: dict[str, str] = {}
+        ids = list(self.lasers) + [lid for lid in frame.scans if lid not in self.lasers]
+        for lid in ids:
+            scan = frame.scans.get(lid)
+            if scan is None:
+                stale[f"laser:{lid}"] = f"laser '{lid}' has no scan"
+                continue
+            age = now - scan.stamp
+            if not age <= limit:
+                stale[f"laser:{lid}"] = f"laser '{lid}' scan {age:.3f} s old > {limit:.3f} s"
+        if not ids:
+            stale["laser"] = "no laser scan"
+        if pose is None:
+            stale["pose"] = "no pose estimate"
+        elif not all(math.isfinite(c) for c in (pose.pose_a.x, pose.pose_a.y, pose.pose_a.theta)):
+            stale["pose"] = "pose estimate not finite"
+        if obstacles is None:
+            stale["obstacles"] = "no obstacle estimate"
+        elif not now - obstacles.stamp <= limit:
+            stale["obstacles"] = (
+                f"obstacle estimate {now - obstacles.stamp:.3f} s old > {limit:.3f} s"
+            )
+        if set(stale) != set(self._stale):
+            if stale:
+                self._emit(now, STALE_SENSOR, "; ".join(stale.values()))
+            else:
+                self._emit(now, SENSOR_FRESH, "sensor data fresh again")
+        self._stale = stale
+
+    def _stop_reason(self) -> str | None:
+        if self._latched:
+            return f"e-stop ({self._cause}): {self._estop_reason}"
+        if self._fault is not None:
+            return f"fault: {self._fault}"
+        if self._stale:
+            return "stale: " + "; ".join(self._stale.values())
+        return None
+
+    # -- slowdown and limits ---------------------------------------------------------------------
+    def _slowdown(self, now: float, obstacles: Obstacles | None) -> float:
+        r_es, r_oa = self.safety.r_es, self.safety.r_oa_trigger
+        r_c = obstacles.closest if obstacles is not None else math.inf
+        scale = 1.0
+        if r_c < r_oa:
+            scale = min(1.0, max(self.slowdown_floor, (r_c - r_es) / (r_oa - r_es)))
+        elif not r_c >= r_oa:  # NaN
+            scale = self.slowdown_floor
+        inside = scale < 1.0
+        reported = self._slow_monitor.update(now, int(inside))
+        if reported == 1:
+            self._emit(
+                now,
+                SLOWDOWN,
+                f"obstacle at {r_c:.2f} m < r_OA-trigger {r_oa:.2f} m: speed x{scale:.2f}",
+                r_c,
+            )
+        elif reported == 0:
+            self._emit(now, SLOWDOWN_END, f"no obstacle within r_OA-trigger {r_oa:.2f} m", r_c)
+        return scale
+
+    def _pan_tilt(
+        self, requested: Mapping[str, PanTiltRate], clipped: set[str]
+    ) -> dict[str, PanTiltRate]:
+        out = {}
+        for uid, (pan_max, tilt_max) in self.rates.items():
+            rate = requested.get(uid)
+            if rate is None:
+                out[uid] = PanTiltRate()
+                continue
+            pan = min(max(rate.pan, -pan_max), pan_max)
+            tilt = min(max(rate.tilt, -tilt_max), tilt_max)
+            if pan != rate.pan:
+                clipped.add(f"pan rate '{uid}'")
+            if tilt != rate.tilt:
+                clipped.add(f"tilt rate '{uid}'")
+            out[uid] = PanTiltRate(pan, tilt)
+        for uid in requested:
+            if uid not in self.rates:
+                clipped.add(f"unknown pan-tilt unit '{uid}'")
+        return out
+
+    def _limit_events(self, now: float, clipped: set[str]) -> None:
+        reported = self._limit_monitor.update(now, int(bool(clipped)))
+        new = clipped - self._limits_reported
+        if new and self._limit_monitor.level == 1:
+            self._emit(now, LIMIT, "command beyond the platform limits: " + ", ".join(sorted(new)))
+            self._limits_reported |= new
+        if reported == 0:
+            self._emit(now, LIMIT_END, "command within the platform limits again")
+            self._limits_reported = set()
+
+    def _zero(self) -> VelocityCommand:
+        return VelocityCommand(0.0, 0.0, {uid: PanTiltRate() for uid in self.rates})
+
+    # -- geofence -------------------------------------------------------------------------------
+    def _footprints(self, poses: list[tuple[float, float, float]]) -> np.ndarray:
+        k = len(poses)
+        coords = np.empty((k, 5, 2))
+        cx, cy = self._corner_x, self._corner_y
+        for i, (x, y, th) in enumerate(poses):
+            c, s = math.cos(th), math.sin(th)
+            coords[i, :, 0] = x + c * cx - s * cy
+            coords[i, :, 1] = y + s * cx + c * cy
+        return shapely.from_ragged_array(
+            shapely.GeometryType.POLYGON,
+            coords.reshape(-1, 2),
+            (np.arange(0, 5 * k + 1, 5), np.arange(k + 1)),
+        )
+
+    def _clearance(self, poses: list[tuple[float, float, float]], idx: np.ndarray) -> FloatArray:
+        """Signed clearance (k, len(idx)) of the footprints at ``poses`` to zones ``idx``."""
+        fps = self._footprints(poses)
+        zones = self._zone_geoms[idx]
+        d = shapely.distance(fps[:, None], zones[None, :])
+        hit = d <= 0.0
+        if hit.any():
+            ii, jj = np.nonzero(hit)
+            inter = shapely.intersection(fps[ii], zones[jj])
+            d[ii, jj] = -np.sqrt(shapely.area(inter))
+        return d
+
+    def _lower_bounds(self, pose: tuple[float, float, float]) -> FloatArray:
+        """Distance from the footprint's bounding disc to each zone's bounding box."""
+        x, y, _ = pose
+        r = self.r_corner
+        out = []
+        for x0, y0, x1, y1 in self._bounds_list:
+            dx = x0 - x if x < x0 else (x - x1 if x > x1 else 0.0)
+            dy = y0 - y if y < y0 else (y - y1 if y > y1 else 0.0)
+            out.append(math.hypot(dx, dy) - r)
+        return np.array(out)
+
+    def _zone_clearance(self, pose: tuple[float, float, float] | None) -> FloatArray:
+        """Clearance to every zone: exact within ``relevance``, a lower bound beyond."""
+        if pose is None or not len(self._zone_ids):
+            return np.zeros(0)
+        d = self._lower_bounds(pose)
+        near = np.nonzero(d <= self.relevance)[0]
+        if len(near):
+            d[near] = self._clearance([pose], near)[0]
+        return d
+
+    def _nearest(self, d: FloatArray) -> tuple[float, str | None]:
+        if not len(d):
+            return math.inf, None
+        k = int(np.argmin(d))
+        return float(d[k]), self._zone_ids[k]
+
+    def _sweep(self, c: _Candidate) -> float:
+        if math.isnan(c.sweep):
+            lim = self.limits
+            rc = self.r_corner
+            c.sweep = (
+                (abs(c.v) + rc * abs(c.w)) * lim.dt
+                + lim.linear_sweep(c.v, c.a)
+                + rc * lim.angular_sweep(c.w)
+            )
+        return c.sweep
+
+    def _blend(
+        self, b: _Candidate, c: _Candidate, ok: Callable[[_Candidate], bool], iters: int = 6
+    ) -> _Candidate:
+        """The candidate closest to ``c`` on the segment b -> c that ``ok`` accepts (b is)."""
+        lo, hi = 0.0, 1.0
+        best = b
+        v0, dt = self._v, self.limits.dt
+        for _ in range(iters):
+            mid = 0.5 * (lo + hi)
+            m = b.blend(c, mid, v0, dt)
+            if ok(m):
+                lo, best = mid, m
+            else:
+                hi = mid
+        return best
+
+    def _geofence(
+        self, pose: tuple[float, float, float] | None, c: _Candidate, b: _Candidate
+    ) -> tuple[_Candidate, int, str, float, str | None]:
+        """(output, level, reason, clearance, nearest zone) for candidate ``c``."""
+        if pose is None or not len(self._zone_ids):
+            return c, _NONE, "", math.inf, None
+        lim, rc = self.limits, self.r_corner
+        d = self._lower_bounds(pose)
+        near = np.nonzero(d <= self.relevance)[0]
+        if not len(near):
+            return c, _NONE, "", *self._nearest(d)
+        quick = (
+            (abs(c.v) + rc * abs(c.w)) * lim.dt + lim.sweep_bound(c.v) + rc * lim.angular_sweep(c.w)
+        )
+        d[near] = self._clearance([pose], near)[0]
+        d_min, zone = self._nearest(d)
+        if quick <= d_min - self.margin:
+            return c, _NONE, "", d_min, zone  # neither rule can bind (margin >= buffer)
+        # the candidates whose approach is tested: c, c without its rotation, c without its
+        # translation, and the braking step
+        cv = _Candidate(c.v, c.a, lim.step_w(self._w, 0.0))
+        cw = _Candidate(b.v, b.a, c.w)
+        cands = (c, cv, cw, b)
+        h = self.horizon
+        x, y, th = pose
+        dp = self._clearance([predict_pose(x, y, th, o.v, o.w, h) for o in cands], near)
+        ids = [self._zone_ids[i] for i in near]
+        out, level, why = self._decide(pose, near, ids, d[near], dp, cands, d_min)
+        return out, level, why, d_min, zone
+
+    def _decide(
+        self,
+        pose: tuple[float, float, float],
+        near: np.ndarray,
+        ids: list[str],
+        d: FloatArray,
+        dp: FloatArray,
+        cands: tuple[_Candidate, _Candidate, _Candidate, _Candidate],
+        d_min: float,
+    ) -> tuple[_Candidate, int, str]:
+        """The soft and hard geofence rules on the near zones (clearances ``d``, predicted
+        clearances ``dp`` of the four candidates)."""
+        margin, buffer = self.margin, self.buffer
+        c, cv, cw, b = cands
+        sc, sb = self._sweep(c), self._sweep(b)
+        # zones where either rule could bind; approaching another zone does not matter
+        rel = d - buffer < max(sc, sb) + margin
+        approach = (dp < d[None, :] - 1e-9) & rel[None, :]
+
+        def soft_budget(k: int) -> tuple[float, int]:
+            if not approach[k].any():
+                return math.inf, -1
+            j = int(np.argmin(np.where(approach[k], d, np.inf)))
+            return float(d[j]) - margin, j
+
+        level, why = _NONE, ""
+        out = c
+        budget_c, jc = soft_budget(0)
+        if sc > budget_c:
+            hit, dz = ids[jc], float(d[jc])
+            within = dz <= margin
+            if sb <= budget_c:
+                out = self._blend(b, c, lambda o: self._sweep(o) <= budget_c)
+                level = _SLOW
+                why = f"approaching zone '{hit}' ({dz:.2f} m): speed limited"
+            else:
+                out = b
+                for k, alt in ((1, cv), (2, cw)):
+                    if self._sweep(alt) <= soft_budget(k)[0]:
+                        out = alt
+                        break
+                level = _STOP if within else _SLOW
+                why = (
+                    f"within {margin:g} m of zone '{hit}' ({dz:.2f} m): approach refused"
+                    if within
+                    else f"approaching zone '{hit}' ({dz:.2f} m): braking"
+                )
+
+        # hard, isotropic rule
+        budget = d_min - buffer
+        if self._sweep(out) <= budget:
+            return out, level, why
+        hit = ids[int(np.argmin(d))]
+        if sb <= budget + _TOL:
+            out = self._blend(b, out, lambda o: self._sweep(o) <= budget)
+            return out, max(level, _SLOW), why or f"near zone '{hit}' ({d_min:.2f} m)"
+        # the invariant is lost (a jump): back out at a crawl, brake, or stop at once
+        esc = self.escape_sweep
+
+        def escapes(o: _Candidate) -> bool:
+            for k, known in enumerate(cands):
+                if o is known:
+                    return not approach[k].any()
+            x, y, th = pose
+            p = predict_pose(x, y, th, o.v, o.w, self.horizon)
+            return not ((self._clearance([p], near)[0] < d - 1e-9) & rel).any()
+
+        why = f"backing out of zone '{hit}' ({d_min:.2f} m)"
+        if self._sweep(out) <= esc and escapes(out):
+            return out, _STOP, why
+        if sb <= esc and escapes(b):
+            if escapes(out):
+                out = self._blend(b, out, lambda o: self._sweep(o) <= esc)
+                return out, _STOP, why
+            return b, _STOP, why
+        if b.is_zero or sb <= d_min:
+            return b, _STOP, f"too close to zone '{hit}' ({d_min:.2f} m): braking"
+        return (
+            b,
+            _EMERGENCY,
+            f"emergency stop: cannot stop before zone '{hit}' ({d_min:.2f} m) within the limits",
+        )
+
+    def _geofence_event(self, now: float, level: int, zone: str | None, d: float, why: str) -> None:
+        reported = self._geo_monitor.update(now, level)
+        if reported is None:
+            return
+        value = d if math.isfinite(d) else None
+        if reported == _NONE:
+            self._emit(now, GEOFENCE_CLEAR, "geofence no longer limits the command", value)
+        elif reported == _SLOW:
+            self._emit(now, GEOFENCE_SLOW, why or f"near zone '{zone}'", value)
+        else:
+            self._emit(now, GEOFENCE_STOP, why or f"near zone '{zone}'", value)
+
+    def _emit(self, now: float, kind: str, reason: str, value: float | None = None) -> None:
+        self.events.append(SafetyEvent(now, kind, reason, value))
+
+
+def _pose_tuple(pose: PoseEstimate | None) -> tuple[float, float, float] | None:
+    if pose is None:
+        return None
+    p = pose.pose_a
+    if not (math.isfinite(p.x) and math.isfinite(p.y) and math.isfinite(p.theta)):
+        return None
+    return (p.x, p.y, p.theta)
+
+
+def _non_finite(command: VelocityCommand) -> str | None:
+    if not math.isfinite(command.v):
+        return f"v={command.v}"
+    if not math.isfinite(command.omega):
+        return f"omega={command.omega}"
+    for uid, rate in command.pan_tilt.items():
+        if not (math.isfinite(rate.pan) and math.isfinite(rate.tilt)):
+            return f"pan-tilt '{uid}'=({rate.pan}, {rate.tilt})"
+    return None
