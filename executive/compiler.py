@@ -222,9 +222,16 @@ class _Builder:
     def checkpoint(self, cp: Checkpoint) -> py_trees.behaviour.Behaviour:
         m = self.mission
         children: list[py_trees.behaviour.Behaviour] = [
-            SetProgress("inspection", checkpoint=cp.id, goal=cp.id),
-            self.navigate(cp.id, self.checkpoint_goal(cp), True, self.checkpoint_tolerance),
+            SetProgress("inspection", checkpoint=cp.id, goal=cp.id)
         ]
+        for k, (vx, vy) in enumerate(cp.via, start=1):
+            via = self.placement.pose_to_airport(Pose2(vx, vy, 0.0))
+            children.append(
+                self.navigate(f"{cp.id} via {k}", lambda via=via: via, False, (0.3, None))
+            )
+        children.append(
+            self.navigate(cp.id, self.checkpoint_goal(cp), True, self.checkpoint_tolerance)
+        )
         if cp.camera is not None and cp.target is not None:
             camera = m.platform.cameras[cp.camera]
             limit = min(camera.pan_limits[1], -camera.pan_limits[0]) - math.radians(5.0)

@@ -254,7 +254,12 @@ def dry_run(
     robot = robot or SimRobot(scenario)
     options = CompileOptions(rate_hz=rate_hz, start=start or scenario.start, resume=resumed)
     compiled = compile_mission(mission, options)
-    safety = SafetyLayer(mission, compiled.placement, 1.0 / rate_hz)
+    safety = SafetyLayer(
+        mission,
+        compiled.placement,
+        1.0 / rate_hz,
+        geofence_margin=mission.safety.geofence_margin,
+    )
     journal = None
     if journal_path is not None:
         journal = Journal(journal_path, mission.id, append=resume)

@@ -83,8 +83,28 @@ def write_report(run: DryRun, out: Path) -> Path:
     return out
 
 
+KINDS = (
+    ("go to", "go to goal"),
+    ("inspect", "inspection"),
+    ("dwell", "dwell"),
+    ("correct", "correct camera angle"),
+    ("emergency", "emergency stop"),
+    ("stop", "stop"),
+    ("operator", "operator control"),
+)
+
+
+def controller_kind(name: str) -> str:
+    """'go to CP07' -> 'go to goal': the controller, without the goal it works on."""
+    return next((kind for prefix, kind in KINDS if name.startswith(prefix)), name)
+
+
 def _controller_colours(run: DryRun) -> dict[str, object]:
-    names = sorted({s.controller.split(" to ")[0] for s in run.samples})
+    order = [kind for _, kind in KINDS]
+    names = sorted(
+        {controller_kind(s.controller) for s in run.samples},
+        key=lambda k: order.index(k) if k in order else len(order),
+    )
     return {name: PALETTE(i % 10) for i, name in enumerate(names)}
 
 
@@ -94,7 +114,7 @@ def trajectory(run: DryRun, path: Path) -> None:
     colours = _controller_colours(run)
     samples = run.samples
     for a, b in itertools.pairwise(samples):
-        kind = a.controller.split(" to ")[0]
+        kind = controller_kind(a.controller)
         ax.plot([a.true.x, b.true.x], [a.true.y, b.true.y], color=colours[kind], lw=1.6, zorder=6)
     for name, colour in colours.items():
         ax.plot([], [], color=colour, lw=2, label=name)
@@ -140,7 +160,7 @@ def timeline(run: DryRun, path: Path) -> None:
     fig, axes = plt.subplots(4, 1, figsize=(11, 8), dpi=100, sharex=True)
     colours = _controller_colours(run)
     names = list(colours)
-    idx = np.array([names.index(s.controller.split(" to ")[0]) for s in samples])
+    idx = np.array([names.index(controller_kind(s.controller)) for s in samples])
     axes[0].scatter(t, idx, c=[colours[names[i]] for i in idx], s=2)
     axes[0].set_yticks(range(len(names)), names, fontsize=6)
     axes[0].set_ylabel("controller")

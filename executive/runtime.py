@@ -20,7 +20,7 @@ from typing import Protocol
 import numpy as np
 import py_trees
 
-from behaviours.base import Controller, Guard
+from behaviours.base import Controller
 from behaviours.keys import (
     COMMAND,
     OBSTACLES,
@@ -170,10 +170,17 @@ class Runtime:
         return node.name, reason
 
     def _failure_reason(self) -> str:
-        for node in self.root.iterate():
-            if node.status == Status.FAILURE and isinstance(node, Guard | Controller):
-                return f"{node.name}: {node.feedback_message}"
-        return "the mission tree failed"
+        """Follow the failure down from the root to the node that caused it."""
+        node = self.root
+        while node.children:
+            failed = [c for c in node.children if c.status == Status.FAILURE]
+            if not failed:
+                break
+            # A sequence fails at its first failing child; a selector only once all have.
+            is_selector = isinstance(node, py_trees.composites.Selector)
+            node = failed[-1] if is_selector else failed[0]
+        detail = f": {node.feedback_message}" if node.feedback_message else ""
+        return f"{node.name}{detail}"
 
     def step(self) -> Status:
         """One period: read, tick, filter, send. Returns the tree's status."""

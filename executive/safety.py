@@ -10,7 +10,8 @@ the e-stop, faults and the geofence always win over the tree):
 0. **Operator reset** (``reset_requested``, a level: honoured on every call where it is
    set and the conditions allow). It clears a fault signalled on an *earlier* call, releases
    a bumper latch once the bumper is released, and releases an obstacle latch at once if
-   the zone is clear (otherwise the obstacle latch stays, see 2.).
+   the zone is clear (otherwise the obstacle latch stays, see 2.). A reset refused because
+   a bumper is still pressed is logged once per request (on its rising edge).
 1. **Non-finite command**: a NaN or infinite v, omega or pan/tilt rate is a controller bug;
    it is handled like :meth:`SafetyLayer.fault` (zero, ``fault-stop``, latched until reset).
 2. **E-stop latch**: latched when ``obstacles.closest < r_es`` (a NaN distance counts as
@@ -60,6 +61,13 @@ the e-stop, faults and the geofence always win over the tree):
      the robot may still back out at a crawl (``S <= escape_sweep``) or brake at its
      limits when that stops it before the zone, and otherwise it is stopped at once
      (``geofence-stop``, an emergency).
+
+   The rules trust the pose estimate and assume the base follows the commands: the buffer
+   (default 0.05 m) absorbs estimate jitter from one period to the next, the margin
+   (default 0.3 m) the base's tracking lag and the estimate's bias. A footprint that
+   overlaps a zone has a negative clearance, ``-sqrt(overlap area)``, so backing out is a
+   motion that increases it. Zones further than a few metres (bounding boxes) cost
+   nothing; shapely is called once per period near a zone, twice when a rule may bind.
 
 **Stopping is always possible**: an e-stop, a fault, stale data or a geofence emergency
 outputs zero at once, even when that exceeds the deceleration (and jerk) limits: the
@@ -180,6 +188,8 @@ class MotionLimits:
         self.alpha_max = float(max_angular_acceleration)
         # change of acceleration per period; a jerk limit looser than 2A/dt never binds
         self.da = min(max_jerk * self.dt, 2.0 * self.a_max)
+        if not (self.da > 0.0 and max_angular_acceleration > 0.0):
+            raise ValueError("the acceleration and jerk limits must be positive")
         self.max_jerk = self.da / self.dt
         self.dw = self.alpha_max * self.dt
         self._v_land = self.reach(self.a_max)
@@ -187,7 +197,6 @@ class MotionLimits:
         self._grid = max(self.v_max, 1e-3) / 200.0
         self._bound = [self.linear_sweep(k * self._grid, self.a_max) for k in range(203)]
 
-    # a*(e): the largest acceleration from which a speed change e can still be completed
     def reach(self, a: float) -> float:
         """Speed change while applying ``a >= 0`` now, then ramping it down to zero."""
         s = self.da
@@ -232,36 +241,51 @@ class MotionLimits:
         if v < 0.0 or (v == 0.0 and a < 0.0):
             v, a = -v, -a
         dt, big_a, s = self.dt, self.a_max, self.da
-        v_ramp = self._v_land + big_a * dt
+        v_land = self._v_land
+        v_ramp = v_land + big_a * dt
+        ceil, sqrt = math.ceil, math.sqrt
         total = 0.0
         for _ in range(100000):
             if v > v_ramp and a > -big_a:
                 # ramp the acceleration down towards -A while the landing cannot bind
-                m = math.ceil((a + big_a) / s - 1e-12) - 1
+                m = ceil((a + big_a) / s - 1e-12) - 1
                 if m >= 1:
                     v_end = v + dt * (m * a - s * m * (m + 1) / 2.0)
                     if v_end > v_ramp:
                         total += dt * (m * v + dt * (m * a * (m + 1) / 2.0 - s * _tri2(m)))
                         v, a = v_end, a - m * s
-            if a == -big_a and v > self._v_land:
-                k = math.floor((v - self._v_land) / (big_a * dt))
+            if a == -big_a and v > v_land:
+                k = math.floor((v - v_land) / (big_a * dt))
                 if k >= 1:
                     total += dt * (k * v - big_a * dt * k * (k + 1) / 2.0)
                     v -= k * big_a * dt
             # one step of step_v(v, a, 0), or the whole landing when it is reachable
-            lo = max(-big_a, a - s)
-            hi = min(big_a, a + s)
-            mag = self.a_star(abs(v))
+            lo = a - s if a - s > -big_a else -big_a
+            hi = a + s if a + s < big_a else big_a
+            e = v if v >= 0.0 else -v
+            mag = 0.0
+            n = 0
+            if e > 0.0:  # a_star(e), inlined
+                q = e / (dt * s)
+                n = max(0, ceil(sqrt(2.0 * q + 0.25) - 1.5))
+                while n > 0 and q <= n * (n + 1) / 2.0:
+                    n -= 1
+                while q > (n + 1) * (n + 2) / 2.0:
+                    n += 1
+                mag = (e / dt + s * n * (n + 1) / 2.0) / (n + 1)
             want = -mag if v > 0.0 else mag
             if lo <= want <= hi:
-                k = 1
-                while mag - k * s > 0.0:
-                    total += dt * self.reach(mag - k * s)
-                    k += 1
+                # the landing: accelerations mag - k s while positive, speeds reach(...)
+                for k in range(1, n + 1):
+                    b = mag - k * s
+                    nb = n - k
+                    total += dt * dt * ((nb + 1) * b - s * nb * (nb + 1) / 2.0)
                 break
-            a = min(max(want, lo), hi)
+            a = want if want > lo else lo
+            if a > hi:
+                a = hi
             v += a * dt
-            total += abs(v) * dt
+            total += (v if v >= 0.0 else -v) * dt
         return total
 
     def sweep_bound(self, v: float) -> float:
@@ -428,7 +452,7 @@ class SafetyLayer:
             cid: (spec.pan_rate, spec.tilt_rate) for cid, spec in platform.cameras.items()
         }
         self.corners = footprint_corners(platform.length, platform.width)
-        self._corner_x, self._corner_y = self.corners[:, 0], self.corners[:, 1]
+        self._ring = [(float(px), float(py)) for px, py in self.corners]
         self.r_corner = math.hypot(platform.length / 2.0, platform.width / 2.0)
         # beyond this clearance no output can be restricted by the geofence
         lim = self.limits
@@ -450,6 +474,7 @@ class SafetyLayer:
         self._a = 0.0
         self._w = 0.0
         self._rest_sweep = 0.0  # sweep after the last output's own period (NaN: unknown)
+        self._binding = False  # a geofence rule could bind on the last period
         # e-stop latch
         self._latched = False
         self._cause: str | None = None
@@ -609,7 +634,7 @@ class SafetyLayer:
                 sides = [s for s in ("front", "rear") if getattr(frame.bumpers, s)]
                 reason, value = f"{' and '.join(sides)} bumper pressed", None
             else:
-                reason = f"obstacle at {closest:.2f} m < r_ES {r_es:.2f} m"
+                reason = f"obstacle at {closest:.3f} m < r_ES {r_es:.2f} m"
                 value = closest
             if not self._latched or cause != self._cause:
                 self._emit(now, ESTOP_LATCHED, reason, value)
@@ -722,7 +747,7 @@ class SafetyLayer:
             self._emit(
                 now,
                 SLOWDOWN,
-                f"obstacle at {r_c:.2f} m < r_OA-trigger {r_oa:.2f} m: speed x{scale:.2f}",
+                f"obstacle at {r_c:.3f} m < r_OA-trigger {r_oa:.2f} m: speed x{scale:.3f}",
                 r_c,
             )
         elif reported == 0:
@@ -765,26 +790,24 @@ class SafetyLayer:
 
     # -- geofence -------------------------------------------------------------------------------
     def _footprints(self, poses: list[tuple[float, float, float]]) -> np.ndarray:
-        k = len(poses)
-        coords = np.empty((k, 5, 2))
-        cx, cy = self._corner_x, self._corner_y
-        for i, (x, y, th) in enumerate(poses):
+        flat: list[tuple[float, float]] = []
+        for x, y, th in poses:
             c, s = math.cos(th), math.sin(th)
-            coords[i, :, 0] = x + c * cx - s * cy
-            coords[i, :, 1] = y + s * cx + c * cy
+            flat += [(x + c * px - s * py, y + s * px + c * py) for px, py in self._ring]
+        k = len(poses)
         return shapely.from_ragged_array(
             shapely.GeometryType.POLYGON,
-            coords.reshape(-1, 2),
+            np.array(flat),
             (np.arange(0, 5 * k + 1, 5), np.arange(k + 1)),
         )
 
     def _clearance(self, poses: list[tuple[float, float, float]], idx: np.ndarray) -> FloatArray:
         """Signed clearance (k, len(idx)) of the footprints at ``poses`` to zones ``idx``."""
         fps = self._footprints(poses)
-        zones = self._zone_geoms[idx]
-        d = shapely.distance(fps[:, None], zones[None, :])
-        hit = d <= 0.0
-        if hit.any():
+        zones = self._zone_geoms if len(idx) == len(self._zone_geoms) else self._zone_geoms[idx]
+        d = shapely.distance(fps[:, None], zones)
+        if d.min() <= 0.0:
+            hit = d <= 0.0
             ii, jj = np.nonzero(hit)
             inter = shapely.intersection(fps[ii], zones[jj])
             d[ii, jj] = -np.sqrt(shapely.area(inter))
@@ -829,7 +852,7 @@ class SafetyLayer:
         return c.sweep
 
     def _blend(
-        self, b: _Candidate, c: _Candidate, ok: Callable[[_Candidate], bool], iters: int = 6
+        self, b: _Candidate, c: _Candidate, ok: Callable[[_Candidate], bool], iters: int = 5
     ) -> _Candidate:
         """The candidate closest to ``c`` on the segment b -> c that ``ok`` accepts (b is)."""
         lo, hi = 0.0, 1.0
@@ -849,19 +872,18 @@ class SafetyLayer:
     ) -> tuple[_Candidate, int, str, float, str | None]:
         """(output, level, reason, clearance, nearest zone) for candidate ``c``."""
         if pose is None or not len(self._zone_ids):
+            self._binding = False
             return c, _NONE, "", math.inf, None
         lim, rc = self.limits, self.r_corner
         d = self._lower_bounds(pose)
         near = np.nonzero(d <= self.relevance)[0]
+        dp: FloatArray | None = None
         if not len(near):
+            self._binding = False
             return c, _NONE, "", *self._nearest(d)
         quick = (
             (abs(c.v) + rc * abs(c.w)) * lim.dt + lim.sweep_bound(c.v) + rc * lim.angular_sweep(c.w)
         )
-        d[near] = self._clearance([pose], near)[0]
-        d_min, zone = self._nearest(d)
-        if quick <= d_min - self.margin:
-            return c, _NONE, "", d_min, zone  # neither rule can bind (margin >= buffer)
         # the candidates whose approach is tested: c, c without its rotation, c without its
         # translation, and the braking step
         cv = _Candidate(c.v, c.a, lim.step_w(self._w, 0.0))
@@ -869,7 +891,19 @@ class SafetyLayer:
         cands = (c, cv, cw, b)
         h = self.horizon
         x, y, th = pose
-        dp = self._clearance([predict_pose(x, y, th, o.v, o.w, h) for o in cands], near)
+        if self._binding:
+            # a rule could bind on the last period: predict now too (one shapely call)
+            preds = [predict_pose(x, y, th, o.v, o.w, h) for o in cands]
+            dd = self._clearance([pose, *preds], near)
+            d[near], dp = dd[0], dd[1:]
+        else:
+            d[near] = self._clearance([pose], near)[0]
+        d_min, zone = self._nearest(d)
+        self._binding = quick > d_min - self.margin
+        if not self._binding:
+            return c, _NONE, "", d_min, zone  # neither rule can bind (margin >= buffer)
+        if dp is None:
+            dp = self._clearance([predict_pose(x, y, th, o.v, o.w, h) for o in cands], near)
         ids = [self._zone_ids[i] for i in near]
         out, level, why = self._decide(pose, near, ids, d[near], dp, cands, d_min)
         return out, level, why, d_min, zone
@@ -906,7 +940,10 @@ class SafetyLayer:
             hit, dz = ids[jc], float(d[jc])
             within = dz <= margin
             if sb <= budget_c:
-                out = self._blend(b, c, lambda o: self._sweep(o) <= budget_c)
+                if budget_c - sb > 1e-4:  # else there is no room worth a search
+                    out = self._blend(b, c, lambda o: self._sweep(o) <= budget_c)
+                else:
+                    out = b
                 level = _SLOW
                 why = f"approaching zone '{hit}' ({dz:.2f} m): speed limited"
             else:
@@ -928,7 +965,10 @@ class SafetyLayer:
             return out, level, why
         hit = ids[int(np.argmin(d))]
         if sb <= budget + _TOL:
-            out = self._blend(b, out, lambda o: self._sweep(o) <= budget)
+            if budget - sb > 1e-4:
+                out = self._blend(b, out, lambda o: self._sweep(o) <= budget)
+            else:
+                out = b
             return out, max(level, _SLOW), why or f"near zone '{hit}' ({d_min:.2f} m)"
         # the invariant is lost (a jump): back out at a crawl, brake, or stop at once
         esc = self.escape_sweep

@@ -58,7 +58,9 @@ def route_points(mission: Mission) -> list[tuple[str, float, float]]:
     pts = [("station", st.x, st.y)]
     pts += [(w.id, *in_a(w.x, w.y, w.frame)) for w in mission.approach]
     pts.append(("P", mission.handover.x, mission.handover.y))
-    pts += [(c.id, *in_a(c.pose.x, c.pose.y, Frame.AIRCRAFT)) for c in mission.checkpoints]
+    for c in mission.checkpoints:
+        pts += [(f"{c.id} via", *in_a(vx, vy, Frame.AIRCRAFT)) for vx, vy in c.via]
+        pts.append((c.id, *in_a(c.pose.x, c.pose.y, Frame.AIRCRAFT)))
     pts += [(w.id, *in_a(w.x, w.y, w.frame)) for w in mission.return_route]
     pts += [("P", mission.handover.x, mission.handover.y), ("station", st.x, st.y)]
     return pts

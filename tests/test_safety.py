@@ -225,7 +225,7 @@ def check_limits(bench: Bench) -> None:
             assert jerk <= lim.max_jerk * (1 + 1e-6) + 1e-6, (k, jerk)
 
 
-# -- motion limits ----------------------------------------------------------------------------------
+# -- motion limits --------------------------------------------------------------------------------
 def brake_by_steps(lim: MotionLimits, v: float, a: float) -> float:
     total = 0.0
     for _ in range(100000):
@@ -288,7 +288,7 @@ def test_angular_sweep_matches_steps():
         assert lim.angular_sweep(w) == pytest.approx(total)
 
 
-# -- limits ----------------------------------------------------------------------------------------
+# -- limits ---------------------------------------------------------------------------------------
 def test_free_command_ramps_to_the_request_within_the_limits():
     b = Bench(layer())
     for _ in range(80):
@@ -336,7 +336,7 @@ def test_stopping_command_decelerates_within_the_limits():
     check_limits(b)
 
 
-# -- e-stop ----------------------------------------------------------------------------------------
+# -- e-stop ---------------------------------------------------------------------------------------
 def test_obstacle_estop_is_immediate_and_releases_after_the_hold():
     lay = layer()
     b = Bench(lay)
@@ -489,6 +489,9 @@ def test_fault_latches_until_a_later_reset():
     out = b.step(cmd(1.0), reset=True)
     assert out.v > 0.0
     assert kinds(lay) == ["fault-stop", "estop-reset"]
+    drained = lay.drain_events()
+    assert [e.kind for e in drained] == ["fault-stop", "estop-reset"]
+    assert lay.events == [] and drained[0].reason == "exception in tick: ZeroDivisionError"
     check_limits(b)
 
 
@@ -511,7 +514,7 @@ def test_non_finite_command_is_a_fault_stop(bad):
     assert b.step(cmd(1.0), reset=True).v > 0.0
 
 
-# -- slowdown zone ---------------------------------------------------------------------------------
+# -- slowdown zone --------------------------------------------------------------------------------
 @pytest.mark.parametrize("rc", [0.7, 1.0, 1.55, 2.0, 2.49, 2.5, 10.0])
 def test_slowdown_scales_the_speed(rc):
     s = mission().safety
@@ -539,7 +542,7 @@ def test_slowdown_respects_the_deceleration_limit_and_logs_its_end():
     assert lay.events[0].value == pytest.approx(0.8)
 
 
-# -- geofence --------------------------------------------------------------------------------------
+# -- geofence -------------------------------------------------------------------------------------
 def drive_at_gse(lay: SafetyLayer, speed: float = 2.0, steps: int = 300) -> Bench:
     # gse-parking (airport frame): x 25..40, y 2..12; start west of it, facing east
     b = Bench(lay, x=15.0, y=7.0, th=0.0)
@@ -786,7 +789,7 @@ def shifted_placement() -> AircraftPlacement:
 
 
 @pytest.mark.parametrize("frame", [Frame.AIRPORT, Frame.AIRCRAFT])
-@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(seed=st.integers(0, 2**32 - 1), mode=modes)
 def test_property_closed_loop_never_enters_a_forbidden_zone(frame, seed, mode):
     m = with_circles(mission())
@@ -798,3 +801,17 @@ def test_property_closed_loop_never_enters_a_forbidden_zone(frame, seed, mode):
         assert worst >= lay.buffer - 1e-6
         assert not any(s.forced_stop for s in b.statuses)
     check_limits(b)
+
+
+@pytest.mark.parametrize("keep", ["none", "airport", "aircraft"])
+def test_missions_with_fewer_zones(keep):
+    m = mission()
+    zones = tuple(z for z in m.airport.zones if z.frame.value == keep)
+    m = dataclasses.replace(m, airport=dataclasses.replace(m.airport, zones=zones))
+    lay = layer(m)
+    b = Bench(lay, m=m)
+    for _ in range(40):
+        out = b.step(cmd(1.0))
+    assert out.v == pytest.approx(1.0)
+    assert (lay.status.geofence_zone is None) == (keep == "none")
+    assert set(lay.zone_geometries) == {z.id for z in zones}

@@ -86,17 +86,20 @@ class NotTrapped(Guard):
         self.min_progress = min_progress
         self._best: float | None = None
         self._since = 0.0
-
-    def initialise(self) -> None:
-        self._best = None
+        self._seen = -math.inf
 
     def update(self) -> Status:
+        # Not reset in initialise(): py_trees calls it before every tick of a behaviour
+        # that returned SUCCESS. A navigation re-entered after a pause starts afresh.
         pose: PoseEstimate | None = self.read(POSE)
         if pose is None:
             return Status.SUCCESS
         goal = self.goal()
         d = math.hypot(goal.x - pose.pose_a.x, goal.y - pose.pose_a.y)
         now = pose.stamp
+        if now - self._seen > 1.0:
+            self._best = None
+        self._seen = now
         if self._best is None or d < self._best - self.min_progress or d < self.min_progress:
             self._best, self._since = d, now
         stuck = now - self._since

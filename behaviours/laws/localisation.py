@@ -7,12 +7,16 @@ and :meth:`PoseFilter.update_heading`. Pure numpy and ``math``; no py_trees impo
 
 State (airport frame A: x east, y north, headings counter-clockwise from +x_A)::
 
-    s = (x, y, theta, b, k)
+    s = (x, y, theta, b, k, c)
 
 * ``x, y`` (m), ``theta`` (rad, kept in [-pi, pi)): the pose of the robot frame R in A;
 * ``b`` (rad/s): the gyro bias, IMU reading = body yaw rate + b + white noise;
 * ``k`` (-): the wheel-odometry yaw-rate scale, the fraction of the wheels' yaw rate
-  that the body really turns (skid-steer slip: ~0.8-1.0, 1 = no slip).
+  that the body really turns (skid-steer slip: ~0.8-1.0, 1 = no slip);
+* ``c`` (-): the wheel-odometry speed scale, the fraction of the wheels' speed that the
+  body really moves (longitudinal slip, ~0.95-1.0). An addition to the minimal
+  (x, y, theta, b, k) filter: sim2d's default 2 % longitudinal slip alone drifts 0.5 m
+  over a 25 m GPS outage, and GPS observes c on every straight run.
 
 Models:
 
@@ -21,25 +25,29 @@ Models:
       v       = (v_r + v_l) / 2
       omega_w = (v_r - v_l) / (2 d)
 
-* body yaw rate: ``omega = imu - b`` when an IMU reading is given, else
-  ``omega = k * omega_w``;
-* motion over ``dt``: an exact arc of constant (v, omega), i.e. a chord of length
-  ``v dt sinc(omega dt / 2)`` along ``theta + omega dt / 2``;
-* ``b`` and ``k`` follow random walks (``gyro_bias_walk``, ``yaw_scale_walk``, per sqrt(s));
+* body speed ``u = c v``; body yaw rate ``omega = imu - b`` when an IMU reading is given,
+  else ``omega = k omega_w``;
+* motion over ``dt``: an exact arc of constant (u, omega), i.e. a chord of length
+  ``u dt sinc(omega dt / 2)`` along ``theta + omega dt / 2``; F its Jacobian in s;
+* ``b``, ``k`` and ``c`` follow random walks (``gyro_bias_walk``, ``yaw_scale_walk``,
+  ``speed_scale_walk``, per sqrt(s)); k and c are clamped to their bounds;
 * process noise: the wheel and gyro sample noises (per reading) plus slip, modelled as
-  velocity errors with correlation time ``slip_time``: longitudinal ``slip_speed * |v|``,
-  lateral ``slip_lateral * |v omega|`` and, on wheel yaw, ``slip_turn * |omega_w|`` --
+  velocity errors with correlation time ``slip_time``: longitudinal ``slip_speed * |u|``,
+  lateral ``slip_lateral * |u omega|`` and, on wheel yaw, ``slip_turn * |omega_w|`` --
   so the noise grows in turns, where a skid-steer base slips most;
 * wheel/IMU yaw consistency (when both are read and ``fuse_wheel_yaw``): the wheels'
-  yaw rate is a scalar measurement of (b, k), ``omega_w = (imu - b) / k + noise``, with
-  H = (0, 0, 0, -1/k, -(imu - b)/k^2). Driving straight or standing still it observes the
-  gyro bias, in turns the slip scale; GPS refines both. The precise IMU rate is the
-  regressor and the noisy wheel rate the measurement, so wheel noise does not bias k
-  (regressing on a noisy rate would pull the slope towards 0: regression dilution); k
-  is learnt only while ``|imu - b|`` exceeds 3 ``gyro_noise``, and likewise, without an
-  IMU, only while ``|omega_w|`` exceeds 3 sigma of its wheel noise. (The same IMU
-  reading also drives the prediction; the correlation is neglected, which is harmless as
-  the wheel noise dominates this measurement's variance.)
+  yaw rate is a scalar measurement ``omega_w = (imu - b) / k + noise``. While the body
+  does not turn (``|imu - b| <= 3 sqrt(gyro_noise^2 + P_bb)``: straight or at rest,
+  where the wheels' "no turn" is reliable) it observes b only, with
+  H = (0, 0, 0, -1/k, 0, 0); while turning it observes k only, with
+  H = (0, 0, 0, 0, -(imu - b)/k^2, 0), so that a slip that varies from turn to turn
+  (sim2d's depends on the share of rotation in the motion) is not mistaken for a bias.
+  GPS refines both through the heading. The precise IMU rate is the regressor and the
+  noisy wheel rate the measurement, so wheel noise does not bias k (regressing on a
+  noisy rate would pull the slope towards 0: regression dilution); for the same reason,
+  without an IMU, k is learnt only while ``|omega_w|`` exceeds 3 sigma of its wheel
+  noise. (The same IMU reading also drives the prediction; the correlation
+  is neglected, harmless as the wheel noise dominates this measurement's variance.)
 
 Measurements: GPS position (H = [I2 0], gated by the Mahalanobis distance), heading
 (H = e3) and full pose (H = [I3 0]); innovations in theta are wrapped to [-pi, pi).
@@ -65,6 +73,9 @@ from numpy.typing import ArrayLike
 from executive.core.frames import AircraftPlacement, FloatArray, Pose2, wrap_angle
 from executive.core.records import GpsFix, ImuReading, PoseEstimate, WheelSpeeds
 
+N_STATES = 6
+"""(x, y, theta, b, k, c)."""
+
 CHI2_999 = {1: 10.828, 2: 13.816, 3: 16.266}
 """Chi-square 99.9% quantiles by degrees of freedom (Mahalanobis gates)."""
 
@@ -77,8 +88,23 @@ def wheel_odometry(wheels: WheelSpeeds, track: float) -> tuple[float, float]:
     return 0.5 * (wheels.right + wheels.left), (wheels.right - wheels.left) / track
 
 
+def _is_psd3(m: FloatArray) -> bool:
+    """Symmetric 3x3 positive semi-definite: every principal minor >= 0 (and finite)."""
+    (a, b, c), (_, d, e), (_, _, g) = m.tolist()
+    minors = (
+        a,
+        d,
+        g,
+        a * d - b * b,
+        a * g - c * c,
+        d * g - e * e,
+        a * (d * g - e * e) - b * (b * g - c * e) + c * (b * e - c * d),
+    )
+    return all(x >= 0.0 for x in minors) and math.isfinite(sum(minors))
+
+
 class PoseFilter:
-    """EKF on (x, y, theta, b, k) for a skid-steer robot; see the module docstring."""
+    """EKF on (x, y, theta, b, k, c) for a skid-steer robot; see the module docstring."""
 
     def __init__(
         self,
@@ -94,12 +120,16 @@ class PoseFilter:
         sigma_gyro_bias: float = 0.01,
         yaw_scale: float = 0.9,
         sigma_yaw_scale: float = 0.1,
-        yaw_scale_walk: float = 0.005,
+        yaw_scale_walk: float = 0.01,
         yaw_scale_bounds: tuple[float, float] = (0.5, 1.2),
+        speed_scale: float = 1.0,
+        sigma_speed_scale: float = 0.03,
+        speed_scale_walk: float = 1e-3,
+        speed_scale_bounds: tuple[float, float] = (0.7, 1.2),
         slip_speed: float = 0.02,
         slip_lateral: float = 0.05,
-        slip_turn: float = 0.1,
-        slip_time: float = 1.0,
+        slip_turn: float = 0.2,
+        slip_time: float = 3.0,
         fuse_wheel_yaw: bool = True,
         gps_gate: float = CHI2_999[2],
         gps_reset_after: int = 10,
@@ -108,11 +138,18 @@ class PoseFilter:
     ) -> None:
         """Start at ``initial`` with independent errors on every state.
 
-        ``wheel_noise`` (m/s) and ``gyro_noise`` (rad/s) are 1-sigma noises of one
-        reading; ``gyro_bias_walk`` (rad/s/sqrt(s)) and ``yaw_scale_walk`` (1/sqrt(s))
-        the random walks of b and k. ``gps_gate`` is the Mahalanobis gate (squared) of a
-        GPS fix; after ``gps_reset_after`` consecutive rejected fixes the filter deems
-        itself lost and re-centres its position on the next fix.
+        ``track`` is the left-to-right wheel distance (m), 2 d of eq. 2.2. ``sigma_*`` are
+        the initial 1-sigma errors, ``gyro_bias``, ``yaw_scale`` and ``speed_scale`` the
+        initial b, k and c. ``wheel_noise`` (m/s, each wheel) and ``gyro_noise`` (rad/s)
+        are the 1-sigma noises of one reading; ``gyro_bias_walk`` (rad/s/sqrt(s)),
+        ``yaw_scale_walk`` and ``speed_scale_walk`` (1/sqrt(s)) the random walks of b, k
+        and c. ``slip_speed``, ``slip_lateral`` (per rad/s) and ``slip_turn`` are the
+        1-sigma slips not explained by c and k, as fractions of the speed, the speed and
+        the wheels' yaw rate, correlated over ``slip_time`` (s). ``gps_gate`` is the
+        squared Mahalanobis gate of a GPS fix; after ``gps_reset_after`` consecutive
+        rejected fixes the filter deems itself lost and re-centres its position on the
+        next fix (0: never). ``confidence_scale`` (m) and ``confidence_lever`` (m): see
+        :attr:`confidence`.
         """
         if track <= 0.0:
             raise ValueError(f"track must be positive, got {track}")
@@ -122,6 +159,8 @@ class PoseFilter:
         self.gyro_bias_walk = float(gyro_bias_walk)
         self.yaw_scale_walk = float(yaw_scale_walk)
         self.yaw_scale_bounds = (float(yaw_scale_bounds[0]), float(yaw_scale_bounds[1]))
+        self.speed_scale_walk = float(speed_scale_walk)
+        self.speed_scale_bounds = (float(speed_scale_bounds[0]), float(speed_scale_bounds[1]))
         self.slip_speed = float(slip_speed)
         self.slip_lateral = float(slip_lateral)
         self.slip_turn = float(slip_turn)
@@ -134,24 +173,25 @@ class PoseFilter:
         # variance of one reading of eq. 2.1 / eq. 2.2 from independent wheel noises
         self._var_v = 0.5 * self.wheel_noise**2
         self._var_wheel_yaw = 2.0 * self.wheel_noise**2 / self.track**2
-        # without an IMU, k is learnt only while the wheels clearly turn (see the module doc)
         self._k_min_rate = 3.0 * math.sqrt(self._var_wheel_yaw)
-        self._eye = np.eye(5)
-        self._f = np.eye(5)
-        self._h_yaw = np.zeros(5)
+        self._eye = np.eye(N_STATES)
+        self._f = np.eye(N_STATES)
+        self._h_yaw = np.zeros(N_STATES)
         self.gps_accepted = 0
         self.gps_rejected = 0
         self.consecutive_gps_rejections = 0
         self._x = self._y = self._theta = 0.0
-        self._b, self._k = float(gyro_bias), float(yaw_scale)
-        self._p = np.zeros((5, 5))
+        self._b, self._k, self._c = float(gyro_bias), float(yaw_scale), float(speed_scale)
+        self._p = np.zeros((N_STATES, N_STATES))
         self.reset(initial, np.diag([sigma_xy**2, sigma_xy**2, sigma_theta**2]))
         self._p[3, 3] = sigma_gyro_bias**2
         self._p[4, 4] = sigma_yaw_scale**2
+        self._p[5, 5] = sigma_speed_scale**2
 
     # -- state --------------------------------------------------------------------------
     def reset(self, pose: Pose2, cov: ArrayLike) -> None:
-        """Re-initialise the pose (x, y, theta) and its 3x3 covariance; keep b and k."""
+        """Re-initialise the pose (x, y, theta) and its 3x3 covariance; keep b, k and c
+        (their correlations with the pose are cleared)."""
         c = np.asarray(cov, dtype=float)
         if c.shape != (3, 3):
             raise ValueError(f"pose covariance must be 3x3, got {c.shape}")
@@ -159,6 +199,7 @@ class PoseFilter:
         self._p[:3, :] = 0.0
         self._p[:, :3] = 0.0
         self._p[:3, :3] = 0.5 * (c + c.T)
+        self.consecutive_gps_rejections = 0
 
     @property
     def pose(self) -> Pose2:
@@ -171,12 +212,12 @@ class PoseFilter:
 
     @property
     def state(self) -> FloatArray:
-        """(x, y, theta, b, k)."""
-        return np.array([self._x, self._y, self._theta, self._b, self._k])
+        """(x, y, theta, b, k, c)."""
+        return np.array([self._x, self._y, self._theta, self._b, self._k, self._c])
 
     @property
     def state_covariance(self) -> FloatArray:
-        """5x5 covariance of :attr:`state`, a copy."""
+        """6x6 covariance of :attr:`state`, a copy."""
         return self._p.copy()
 
     @property
@@ -186,6 +227,10 @@ class PoseFilter:
     @property
     def yaw_scale(self) -> float:
         return self._k
+
+    @property
+    def speed_scale(self) -> float:
+        return self._c
 
     @property
     def position_sigma(self) -> float:
@@ -238,47 +283,51 @@ class PoseFilter:
         else:
             omega = k * omega_w
             dw_db = 0.0
+            # k is learnt only while the wheels clearly turn (see the module docstring)
             dw_dk = omega_w if abs(omega_w) > self._k_min_rate else 0.0
             var_w = (
                 k * k * self._var_wheel_yaw + (self.slip_turn * omega_w) ** 2 * self.slip_time / dt
             )
 
-        # exact arc: chord length v dt sinc(h) along theta + h, h = omega dt / 2
+        # exact arc: chord length u dt sinc(h) along theta + h, h = omega dt / 2, with the
+        # body's forward speed u = c v
+        u = self._c * v
         h = 0.5 * omega * dt
         if abs(h) < 1e-4:
             sinc, dsinc = 1.0 - h * h / 6.0, -h / 3.0
         else:
             sinc = math.sin(h) / h
             dsinc = (h * math.cos(h) - math.sin(h)) / (h * h)
-        vdt = v * dt
-        dist = vdt * sinc
+        udt = u * dt
+        dist = udt * sinc
         phi = self._theta + h
         c, s = math.cos(phi), math.sin(phi)
         self._x += dist * c
         self._y += dist * s
         self._theta = wrap_angle(self._theta + omega * dt)
 
-        # sensitivities of (x, y, theta) to omega and v
+        # sensitivities of (x, y, theta) to omega and u
         half_dt = 0.5 * dt
-        dx_dw = half_dt * (vdt * dsinc * c - dist * s)
-        dy_dw = half_dt * (vdt * dsinc * s + dist * c)
-        dx_dv, dy_dv = dt * sinc * c, dt * sinc * s
+        dx_dw = half_dt * (udt * dsinc * c - dist * s)
+        dy_dw = half_dt * (udt * dsinc * s + dist * c)
+        dx_du, dy_du = dt * sinc * c, dt * sinc * s
 
         f = self._f
         f[0, 2] = -dist * s
         f[1, 2] = dist * c
         f[0, 3], f[1, 3], f[2, 3] = dx_dw * dw_db, dy_dw * dw_db, dt * dw_db
         f[0, 4], f[1, 4], f[2, 4] = dx_dw * dw_dk, dy_dw * dw_dk, dt * dw_dk
+        f[0, 5], f[1, 5] = dx_du * v, dy_du * v
         p = np.dot(np.dot(f, self._p), f.T)
 
-        # process noise: G diag(var) G^T over v (along phi), lateral and omega
+        # process noise: G diag(var) G^T over u (along phi), lateral and omega
         corr = self.slip_time / dt
-        var_v = self._var_v + (self.slip_speed * v) ** 2 * corr
-        var_l = (self.slip_lateral * v * omega) ** 2 * corr
+        var_u = self._c**2 * self._var_v + (self.slip_speed * u) ** 2 * corr
+        var_l = (self.slip_lateral * u * omega) ** 2 * corr
         lx, ly = -s * dt, c * dt
-        qxx = var_v * dx_dv * dx_dv + var_l * lx * lx + var_w * dx_dw * dx_dw
-        qyy = var_v * dy_dv * dy_dv + var_l * ly * ly + var_w * dy_dw * dy_dw
-        qxy = var_v * dx_dv * dy_dv + var_l * lx * ly + var_w * dx_dw * dy_dw
+        qxx = var_u * dx_du * dx_du + var_l * lx * lx + var_w * dx_dw * dx_dw
+        qyy = var_u * dy_du * dy_du + var_l * ly * ly + var_w * dy_dw * dy_dw
+        qxy = var_u * dx_du * dy_du + var_l * lx * ly + var_w * dx_dw * dy_dw
         qxt = var_w * dx_dw * dt
         qyt = var_w * dy_dw * dt
         p[0, 0] += qxx
@@ -292,6 +341,7 @@ class PoseFilter:
         p[2, 1] += qyt
         p[3, 3] += self.gyro_bias_walk**2 * dt
         p[4, 4] += self.yaw_scale_walk**2 * dt
+        p[5, 5] += self.speed_scale_walk**2 * dt
         self._p = p  # symmetric up to rounding: symmetrised once, after the yaw update
         if not (
             has_imu and self.fuse_wheel_yaw and self._update_yaw_consistency(imu_rate, omega_w)
@@ -299,13 +349,15 @@ class PoseFilter:
             self._p = (p + p.T) * 0.5
 
     def _update_yaw_consistency(self, imu_rate: float, omega_w: float) -> bool:
-        """Scalar update: omega_w = (imu - b) / k, H = (0, 0, 0, -1/k, -(imu - b)/k^2)."""
+        """Scalar update omega_w = (imu - b) / k: of b at rest or straight, of k in turns."""
         k = self._k
         rate = imu_rate - self._b
         r = self._var_wheel_yaw + (self.gyro_noise / k) ** 2 + (self.slip_turn * omega_w) ** 2
         h = self._h_yaw
-        h[3] = -1.0 / k
-        h[4] = -rate / (k * k) if abs(rate) > 3.0 * self.gyro_noise else 0.0
+        if rate * rate > 9.0 * (self.gyro_noise**2 + self._p[3, 3]):  # turning: learn k only
+            h[3], h[4] = 0.0, -rate / (k * k)
+        else:  # the wheels' "no turn" is reliable: learn b only
+            h[3], h[4] = -1.0 / k, 0.0
         return self._correct_scalar(h, omega_w - rate / k, r)
 
     # -- measurements -------------------------------------------------------------------
@@ -352,14 +404,18 @@ class PoseFilter:
 
         The estimate moves towards ``pose`` by the Kalman gain P (P + cov)^-1 (wrapped
         heading innovation). ``gate`` as in :meth:`update_heading` (``CHI2_999[3]``).
+        A ``cov`` that is not symmetric positive semi-definite (or not finite) is refused.
         """
         r = np.asarray(cov, dtype=float)
         if r.shape != (3, 3):
             raise ValueError(f"pose covariance must be 3x3, got {r.shape}")
         if not (math.isfinite(pose.x) and math.isfinite(pose.y) and math.isfinite(pose.theta)):
             return False
+        r = 0.5 * (r + r.T)
+        if not _is_psd3(r):
+            return False
         y = np.array([pose.x - self._x, pose.y - self._y, wrap_angle(pose.theta - self._theta)])
-        return self._correct_block(3, y, 0.5 * (r + r.T), gate)
+        return self._correct_block(3, y, r, gate)
 
     # -- the Kalman correction ----------------------------------------------------------
     def _correct_block(
@@ -375,23 +431,26 @@ class PoseFilter:
             if not (det > 0.0 and a > 0.0):
                 return False
             s_inv = np.array([[d, -b], [-c, a]]) / det
-        else:
-            try:
-                s_inv = np.linalg.inv(s_mat)
-            except np.linalg.LinAlgError:
+        else:  # symmetric 3x3: adjugate / determinant
+            (a, b, c), (_, d, e), (_, _, g) = s_mat.tolist()
+            c00, c01, c02 = d * g - e * e, c * e - b * g, b * e - c * d
+            det = a * c00 + b * c01 + c * c02
+            if not (det > 0.0 and a > 0.0):
                 return False
+            c11, c12, c22 = a * g - c * c, b * c - a * e, a * d - b * b
+            s_inv = np.array([[c00, c01, c02], [c01, c11, c12], [c02, c12, c22]]) / det
         if gate is not None and not np.dot(y, np.dot(s_inv, y)) <= gate:
             return False
-        gain = np.dot(pht, s_inv)  # (5, m)
+        gain = np.dot(pht, s_inv)  # (n, m)
         a_mat = self._eye.copy()
         a_mat[:, :m] -= gain  # I - K H
         return self._apply(np.dot(gain, y), a_mat, np.dot(np.dot(gain, r), gain.T))
 
     def _correct_scalar(self, h: FloatArray, y: float, r: float, gate: float | None = None) -> bool:
-        """Update with one measurement row ``h`` (5,), innovation ``y``, variance ``r``.
+        """Update with one measurement row ``h`` (n,), innovation ``y``, variance ``r``.
 
         The Joseph product (I - K h^T) P (I - K h^T)^T is evaluated as two rank-one
-        updates, AP = P - K (P h)^T and AP A^T = AP - (AP h) K^T, cheaper than 5x5 products.
+        updates, AP = P - K (P h)^T and AP A^T = AP - (AP h) K^T, cheaper than matrix products.
         """
         p = self._p
         pht = np.dot(p, h)
@@ -424,13 +483,15 @@ class PoseFilter:
         return True
 
     def _add(self, dx: list[float]) -> None:
-        ddx, ddy, dth, db, dk = dx
+        ddx, ddy, dth, db, dk, dc = dx
         self._x += ddx
         self._y += ddy
         self._theta = wrap_angle(self._theta + dth)
         self._b += db
         lo, hi = self.yaw_scale_bounds
         self._k = min(hi, max(lo, self._k + dk))
+        lo, hi = self.speed_scale_bounds
+        self._c = min(hi, max(lo, self._c + dc))
 
 
 __all__ = ["CHI2_999", "PoseFilter", "wheel_odometry"]

@@ -11,13 +11,19 @@ import math
 from collections.abc import Iterable, Iterator
 
 import numpy as np
+from shapely.geometry import LineString
+from shapely.geometry import Polygon as ShapelyPolygon
+from shapely.geometry.base import BaseGeometry
 
 from executive.core.frames import AircraftPlacement, Pose2, aircraft_from_robot, pan_tilt_towards
-from executive.core.geometry import distance_to_shape, polygon_problem
+from executive.core.geometry import distance_to_shape, polygon_problem, to_shapely
 from executive.core.model import CameraSpec, Feature, Frame, Mission
+
+Point2 = tuple[float, float]
 
 __all__ = [
     "clearance_problems",
+    "leg_problems",
     "polygon_problem",
     "suggest",
     "why_no_camera_sees",
@@ -34,12 +40,18 @@ def suggest(name: str, known: Iterable[str]) -> str:
 def clearance_problems(
     mission: Mission, placement: AircraftPlacement, label: str, x: float, y: float, frame: Frame
 ) -> Iterator[str]:
-    """Why the robot cannot stand at (x, y): too close to the aircraft or in a forbidden zone.
+    """Why the robot cannot stop at (x, y): too close to the aircraft or to a forbidden zone.
 
-    The robot needs half its width clear of every footprint shape and forbidden zone;
-    shapes are compared in their own frame (the airport <-> aircraft map is rigid).
+    At every stop the robot may turn on the spot (align-first navigation, a final turn to
+    the checkpoint heading), sweeping a circle of half its diagonal. The lasers see the
+    aircraft like any obstacle, so that circle must stay r_ES clear of the footprint or
+    the e-stop latches; and the geofence margin clear of every forbidden zone (the safety
+    layer refuses to bring the footprint closer than that). Shapes are compared in their
+    own frame (the airport <-> aircraft map is rigid).
     """
-    half = mission.platform.half_width
+    turn = mission.platform.turning_radius
+    r_es = mission.safety.r_es
+    margin = mission.safety.geofence_margin
     if frame is Frame.AIRCRAFT:
         xy_f = (x, y)
         xy_a = tuple(placement.to_airport_xy((x, y)))
@@ -48,21 +60,63 @@ def clearance_problems(
         xy_f = tuple(placement.to_aircraft_xy((x, y)))
     for shape in mission.aircraft.footprint:
         d = distance_to_shape(xy_f[0], xy_f[1], shape)
-        if d < half:
+        if d < turn + r_es:
             where = "inside" if d == 0.0 else f"{d:.2f} m from"
             yield (
                 f"{label} is {where} the aircraft footprint '{shape.id}'; the robot needs "
-                f"{half:.2f} m (half its width)"
+                f"{turn + r_es:.2f} m to turn on the spot without an emergency stop (half its "
+                f"diagonal {turn:.2f} m + r_ES {r_es:.2f} m)"
             )
     for zone in mission.airport.zones:
         px, py = xy_f if zone.frame is Frame.AIRCRAFT else xy_a
         d = distance_to_shape(px, py, zone.shape)
-        if d < half:
+        if d < turn + margin:
             where = "inside" if d == 0.0 else f"{d:.2f} m from"
             yield (
                 f"{label} is {where} forbidden zone '{zone.id}' ({zone.kind.value}); the robot "
-                f"needs {half:.2f} m (half its width)"
+                f"needs {turn + margin:.2f} m to turn on the spot (half its diagonal "
+                f"{turn:.2f} m + geofence margin {margin:.2f} m)"
             )
+
+
+def leg_problems(
+    mission: Mission, placement: AircraftPlacement, label: str, a: Point2, b: Point2
+) -> Iterator[str]:
+    """Why the robot cannot drive straight from ``a`` to ``b`` (both in A).
+
+    Driving, the footprint sweeps half its width either side of the leg: that plus r_ES
+    is needed from the aircraft footprint (or the e-stop latches), and that plus the
+    geofence margin from every forbidden zone (the ends are checked as stops).
+    """
+    line = LineString([a, b])
+    if line.length < 1e-9:
+        return
+    half = mission.platform.half_width
+    r_es = mission.safety.r_es
+    margin = mission.safety.geofence_margin
+    for shape in mission.aircraft.footprint:
+        d = line.distance(_in_airport(to_shapely(shape), placement))
+        if d < half + r_es:
+            yield (
+                f"{label} passes {d:.2f} m from the aircraft footprint '{shape.id}'; the robot "
+                f"needs {half + r_es:.2f} m to pass without an emergency stop (half its width "
+                f"{half:.2f} m + r_ES {r_es:.2f} m): move a stop or add a via point"
+            )
+    for zone in mission.airport.zones:
+        geom = to_shapely(zone.shape)
+        if zone.frame is Frame.AIRCRAFT:
+            geom = _in_airport(geom, placement)
+        d = line.distance(geom)
+        if d < half + margin:
+            yield (
+                f"{label} passes {d:.2f} m from forbidden zone '{zone.id}' ({zone.kind.value}); "
+                f"the robot needs {half + margin:.2f} m (half its width {half:.2f} m + geofence "
+                f"margin {margin:.2f} m): move a stop or add a via point"
+            )
+
+
+def _in_airport(geom: BaseGeometry, placement: AircraftPlacement) -> ShapelyPolygon:
+    return ShapelyPolygon(placement.to_airport_xy(np.asarray(geom.exterior.coords)))
 
 
 def _deg_range(limits: tuple[float, float]) -> str:

@@ -10,6 +10,7 @@ raises :class:`~executive.core.problems.InvalidInputError` and returns nothing.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Callable
 from pathlib import Path
@@ -19,6 +20,7 @@ from lxml import etree
 
 from executive.core import checks
 from executive.core.model import (
+    DEFAULT_GEOFENCE_MARGIN,
     Aircraft,
     Airport,
     CameraKind,
@@ -229,7 +231,10 @@ def _build_mission(
     safety_el = r.child(root, "safety")
     assert safety_el is not None
     safety = SafetyRadii(
-        r.num(safety_el, "r-es"), r.num(safety_el, "r-oa-trigger"), r.num(safety_el, "estop-hold")
+        r.num(safety_el, "r-es"),
+        r.num(safety_el, "r-oa-trigger"),
+        r.num(safety_el, "estop-hold"),
+        r.num(safety_el, "geofence-margin", DEFAULT_GEOFENCE_MARGIN),
     )
     if not safety.r_es < safety.r_oa_trigger:
         r.problem(
@@ -495,6 +500,7 @@ def _checkpoint(
         target=target,
         servo=ServoMethod(servo) if servo else None,
         dwell=r.num(el, "dwell", 0.0),
+        via=tuple((r.num(v, "x"), r.num(v, "y")) for v in r.children(el, "via")),
         where=r.where(el),
     )
 
@@ -512,6 +518,8 @@ def _check_placement(
     places: list[tuple[etree._Element, str, float, float, Frame]] = []
     for ce, cp in zip(checkpoint_el, mission.checkpoints, strict=True):
         places.append((ce, f"checkpoint '{cp.id}'", cp.pose.x, cp.pose.y, Frame.AIRCRAFT))
+        for k, (ve, (vx, vy)) in enumerate(zip(r.children(ce, "via"), cp.via, strict=True)):
+            places.append((ve, f"via point {k + 1} of '{cp.id}'", vx, vy, Frame.AIRCRAFT))
     for we, wp in zip(waypoint_el, (*mission.approach, *mission.return_route), strict=True):
         places.append((we, f"waypoint '{wp.id}'", wp.x, wp.y, wp.frame))
     st = mission.airport.station
@@ -522,6 +530,36 @@ def _check_placement(
     for element, label, x, y, frame in places:
         for message in checks.clearance_problems(mission, placement, label, x, y, frame):
             r.problem(element, "clearance", message)
+
+    # The route as the robot drives it, straight from stop to stop, in A.
+    def in_a(x: float, y: float, frame: Frame) -> tuple[float, float]:
+        if frame is Frame.AIRCRAFT:
+            ax, ay = placement.to_airport_xy((x, y))
+            return float(ax), float(ay)
+        return x, y
+
+    n_approach = len(mission.approach)
+    station = (station_el, "the charging station", (st.x, st.y))
+    handover = (handover_el, "the handover point", (mission.handover.x, mission.handover.y))
+    route = [station]
+    route += [
+        (we, f"waypoint '{wp.id}'", in_a(wp.x, wp.y, wp.frame))
+        for we, wp in zip(waypoint_el[:n_approach], mission.approach, strict=True)
+    ]
+    route.append(handover)
+    for ce, cp in zip(checkpoint_el, mission.checkpoints, strict=True):
+        for k, (ve, (vx, vy)) in enumerate(zip(r.children(ce, "via"), cp.via, strict=True)):
+            route.append((ve, f"via point {k + 1} of '{cp.id}'", in_a(vx, vy, Frame.AIRCRAFT)))
+        route.append((ce, f"checkpoint '{cp.id}'", in_a(cp.pose.x, cp.pose.y, Frame.AIRCRAFT)))
+    route += [
+        (we, f"waypoint '{wp.id}'", in_a(wp.x, wp.y, wp.frame))
+        for we, wp in zip(waypoint_el[n_approach:], mission.return_route, strict=True)
+    ]
+    route += [handover, station]
+    for (_, a_label, a), (element, b_label, b) in itertools.pairwise(route):
+        leg = f"the leg from {a_label} to {b_label}"
+        for message in checks.leg_problems(mission, placement, leg, a, b):
+            r.problem(element, "leg-clearance", message)
 
     for ce, cp in zip(checkpoint_el, mission.checkpoints, strict=True):
         known_target = cp.target in mission.aircraft.features

@@ -240,14 +240,25 @@ class Platform:
     def half_width(self) -> float:
         return self.width / 2.0
 
+    @property
+    def turning_radius(self) -> float:
+        """Radius of the circle the footprint sweeps when the robot turns on the spot."""
+        return math.hypot(self.length, self.width) / 2.0
+
+
+DEFAULT_GEOFENCE_MARGIN = 0.3
+"""Metres the footprint keeps from forbidden zones when a mission does not say."""
+
 
 @dataclass(frozen=True, slots=True)
 class SafetyRadii:
-    """r_ES < r_OA-trigger (m), and how long (s) the zone must be clear to release an e-stop."""
+    """r_ES < r_OA-trigger (m), how long (s) the zone must be clear to release an e-stop,
+    and the margin (m) the footprint keeps from forbidden zones."""
 
     r_es: float
     r_oa_trigger: float
     estop_hold: float
+    geofence_margin: float = DEFAULT_GEOFENCE_MARGIN
 
 
 @dataclass(frozen=True, slots=True)
@@ -300,6 +311,8 @@ class Checkpoint:
     target: str | None = None
     servo: ServoMethod | None = None
     dwell: float = 0.0
+    via: tuple[tuple[float, float], ...] = ()
+    """Pass-through points (in F) on the way to the checkpoint, in order."""
     where: SourceLocation = field(default=_NOWHERE, compare=False, repr=False)
 
 
