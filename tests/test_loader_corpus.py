@@ -298,7 +298,7 @@ CASES: list[Case] = [
         5,
         "clearance",
         "checkpoint 'CP04' is 0.30 m from the aircraft footprint 'main-gear-left'; "
-        "the robot needs 0.86 m to turn on the spot (half its diagonal)",
+        "the robot needs 1.46 m to turn on the spot without an emergency stop",
     ),
     Case(
         "mission-checkpoint-in-zone.xml",

@@ -527,9 +527,13 @@ def _check_placement(
     places.append(
         (handover_el, "the handover point", mission.handover.x, mission.handover.y, Frame.AIRPORT)
     )
-    for element, label, x, y, frame in places:
+    # Clearances depend on r_ES: when the radii are wrong (already reported) skip them.
+    radii_ok = 0.0 < mission.safety.r_es < mission.safety.r_oa_trigger
+    blocked: set[etree._Element] = set()  # stops with a problem: their legs would repeat it
+    for element, label, x, y, frame in places if radii_ok else ():
         for message in checks.clearance_problems(mission, placement, label, x, y, frame):
             r.problem(element, "clearance", message)
+            blocked.add(element)
 
     # The route as the robot drives it, straight from stop to stop, in A.
     def in_a(x: float, y: float, frame: Frame) -> tuple[float, float]:
@@ -556,7 +560,9 @@ def _check_placement(
         for we, wp in zip(waypoint_el[n_approach:], mission.return_route, strict=True)
     ]
     route += [handover, station]
-    for (_, a_label, a), (element, b_label, b) in itertools.pairwise(route):
+    for (start, a_label, a), (element, b_label, b) in itertools.pairwise(route):
+        if not radii_ok or start in blocked or element in blocked:
+            continue
         leg = f"the leg from {a_label} to {b_label}"
         for message in checks.leg_problems(mission, placement, leg, a, b):
             r.problem(element, "leg-clearance", message)
