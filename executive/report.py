@@ -28,6 +28,8 @@ from executive.dryrun import DryRun
 from sim2d.view import draw_world
 
 PALETTE = plt.get_cmap("tab10")
+STOP_KINDS = ("estop-latched", "stale-sensor", "fault-stop", "geofence-stop")
+"""Safety events that stop the robot, listed with their reasons in metrics.json."""
 
 
 def metrics(run: DryRun) -> dict[str, object]:
@@ -64,6 +66,11 @@ def metrics(run: DryRun) -> dict[str, object]:
         ],
         "min_clearance": round(min(clearances), 3) if clearances else None,
         "estops": len(estops),
+        "safety_stops": [
+            {"t": round(e.t, 2), "kind": e.detail.get("kind"), "reason": e.detail.get("reason")}
+            for e in result.events
+            if e.kind == "safety" and e.detail.get("kind") in STOP_KINDS
+        ],
         "geofence_breaches": [{"t": round(t, 2), "zone": z} for t, z in run.breaches],
         "tick_timing": result.stats.summary(),
         "warnings": run.warnings,

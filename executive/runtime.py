@@ -183,9 +183,13 @@ class Runtime:
         return f"{node.name}{detail}"
 
     def step(self) -> Status:
-        """One period: read, tick, filter, send. Returns the tree's status."""
-        t0 = time.perf_counter()
+        """One period: read, tick, filter, send. Returns the tree's status.
+
+        The tick time measured is the executive's own work (sensing + tree + controllers
+        + safety layer), from the frame read to the command ready, without the robot.
+        """
         frame = self.robot.read()
+        t0 = time.perf_counter()
         now = frame.stamp
         operator = self.operator(now)
         self.bb.set(SENSOR_FRAME.name, frame, overwrite=True)
@@ -204,8 +208,8 @@ class Runtime:
             obstacles=self._get(OBSTACLES.name),
             reset_requested=operator.reset_estop,
         )
-        self.robot.send(self.sent)
         self.stats.durations.append(time.perf_counter() - t0)
+        self.robot.send(self.sent)
         self._record(now)
         if self.on_tick is not None:
             self.on_tick(now, frame, self.sent, self)

@@ -1,0 +1,153 @@
+"""End-to-end: the executive runs missions in sim2d (ISSUE 4 acceptance).
+
+Each test runs the whole stack — compiled tree, runtime, safety layer — against the
+simulator and judges the outcome on ground truth.
+"""
+
+import json
+import math
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from executive.core.records import OperatorRequests
+from executive.dryrun import dry_run
+from executive.report import metrics, write_report
+from sim2d.scenario import load_scenario
+from tests.conftest import MISSIONS
+from tests.sim2d_helpers import make_scenario
+
+pytestmark = pytest.mark.slow
+
+
+def _assert_mission_succeeded(run):
+    assert run.result.outcome == "completed", run.result.reason
+    assert not run.robot.truth.collisions
+    assert not run.breaches
+    mission = run.scenario.mission
+    for cp, outcome in zip(mission.checkpoints, run.checkpoints, strict=True):
+        assert outcome.reached, cp.id
+        assert outcome.position_error <= 0.15, (cp.id, outcome)
+        assert outcome.heading_error_deg <= 5.0, (cp.id, outcome)
+        assert outcome.items == len(cp.items), cp.id  # every item inspected
+    results = run.result.progress.results
+    assert len(results) == sum(len(cp.items) for cp in mission.checkpoints)
+    assert all(r.detected for r in results)
+
+
+@pytest.mark.parametrize("kind", ["a320", "b737-800"])
+def test_preflight_on_the_clear_apron(kind, tmp_path):
+    run = dry_run(load_scenario(MISSIONS / kind / "scenarios" / "clear-apron.xml"))
+    _assert_mission_succeeded(run)
+    out = write_report(run, tmp_path / "report")
+    report = json.loads((out / "metrics.json").read_text())
+    assert report["succeeded"] and report["checkpoints_reached"] == len(run.checkpoints)
+    assert (out / "trajectory.png").stat().st_size > 10_000
+    assert (out / "timeline.png").stat().st_size > 10_000
+    events = [json.loads(line) for line in (out / "events.jsonl").read_text().splitlines()]
+    switches = [e for e in events if e["event"] == "controller"]
+    assert switches and all("reason" in e for e in switches)
+
+
+LAB = {"mission_type": "lab", "mission": "visual-servoing.xml"}
+
+
+def test_pedestrian_in_front_triggers_the_estop_and_the_mission_goes_on(tmp_path):
+    # Lab mission: the robot goes from P (2, -6) to CP1 (1.5, -3.5 in the lab frame). A
+    # person starts walking slowly across its way (y = -4.6) when the robot nears P,
+    # steps in front of it, and walks on to the far side of the room.
+    walker = (
+        '<obstacles><path id="walker" kind="person" radius="0.3" height="1.8" speed="0.3"'
+        ' trigger-radius="3"><waypoint x="-0.5" y="-4.6"/><waypoint x="9" y="-4.6"/>'
+        "</path></obstacles>"
+    )
+    run = dry_run(make_scenario(tmp_path, walker, **LAB))
+    kinds = [e.detail.get("kind") for e in run.result.events if e.kind == "safety"]
+    assert "estop-latched" in kinds and "estop-released" in kinds
+    to_estop = [
+        e
+        for e in run.result.events
+        if e.kind == "controller" and e.detail["to"] == "emergency stop"
+    ]
+    assert to_estop and "r_ES" in to_estop[0].detail["reason"]
+    _assert_mission_succeeded(run)
+
+
+def test_bumper_latches_until_the_operator_resets(tmp_path):
+    fault = '<faults><bumper-hit bumper="front" at="8" duration="0.5"/></faults>'
+    scenario = make_scenario(tmp_path, fault, **LAB)
+
+    def reset_at_30(t):
+        return OperatorRequests(reset_estop=30.0 <= t < 30.5)
+
+    run = dry_run(scenario, operator=reset_at_30)
+    latched = [s for s in run.samples if 8.2 <= s.t < 30.0]
+    assert latched and all(s.v == 0.0 and s.omega == 0.0 for s in latched)
+    assert any(s.v != 0.0 for s in run.samples if s.t > 30.5)
+    _assert_mission_succeeded(run)
+
+    held = dry_run(make_scenario(tmp_path, fault, name="nobody.xml", **LAB), max_time=45.0)
+    assert held.result.outcome == "timeout"
+    assert all(s.v == 0.0 and s.omega == 0.0 for s in held.samples if s.t >= 8.2)
+
+
+def test_laser_dropout_stops_the_robot_and_the_report_says_why(tmp_path):
+    fault = '<faults><laser-dropout laser="front" at="6" duration="4"/></faults>'
+    run = dry_run(make_scenario(tmp_path, fault, **LAB))
+    stopped = [s for s in run.samples if 6.3 <= s.t < 10.0]
+    assert stopped and all(s.v == 0.0 and s.omega == 0.0 for s in stopped)
+    report = metrics(run)
+    stops = [s for s in report["safety_stops"] if s["kind"] == "stale-sensor"]
+    assert stops and "front" in stops[0]["reason"] and math.isclose(stops[0]["t"], 6.1, abs_tol=0.3)
+    _assert_mission_succeeded(run)
+
+
+def test_a_killed_run_resumes_without_repeating_or_skipping_a_checkpoint(tmp_path):
+    """SIGKILL the dry-run process once a checkpoint is journaled, then --resume."""
+    out = tmp_path / "run"
+    journal = out / "journal.jsonl"
+    command = [
+        sys.executable,
+        "-m",
+        "executive.cli",
+        "dry-run",
+        str(MISSIONS / "lab" / "visual-servoing.xml"),
+        "--out",
+        str(out),
+        "--quiet",
+    ]
+    first = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 180
+    try:
+        while time.monotonic() < deadline and first.poll() is None:
+            if journal.exists() and '"checkpoint-done"' in journal.read_text():
+                break
+            time.sleep(0.02)
+        assert first.poll() is None, "the run ended before it could be killed"
+        first.send_signal(signal.SIGKILL)
+    finally:
+        first.wait()
+    done_before = _done(journal)
+    assert 1 <= len(done_before) < 3
+    second = subprocess.run(
+        [*command, "--resume"], capture_output=True, text=True, timeout=300, check=False
+    )
+    assert second.returncode == 0, second.stdout + second.stderr
+    assert _done(journal) == ["CP1", "CP2", "CP3"]  # each once, in order
+    report = json.loads((out / "metrics.json").read_text())
+    assert report["resumed_after"] == done_before and report["succeeded"]
+
+
+def _done(journal):
+    done = []
+    for line in journal.read_text().splitlines():
+        try:
+            record = json.loads(line)
+        except json.JSONDecodeError:
+            continue  # the line SIGKILL tore
+        if record.get("event") == "checkpoint-done":
+            done.append(record["checkpoint"])
+    return done
