@@ -156,8 +156,8 @@ def sight_lines_blocked(
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # parallel: t = inf
             t = (a[None, :, 0] * e[None, :, 1] - a[None, :, 1] * e[None, :, 0]) / denom
             u = (a[None, :, 0] * d[:, None, 1] - a[None, :, 1] * d[:, None, 0]) / denom
-        crosses = (t > 0.0) & (t < 1.0) & (u >= 0.0) & (u <= 1.0)
-        z = zo + dz[:, None] * t
+            crosses = (t > 0.0) & (t < 1.0) & (u >= 0.0) & (u <= 1.0)
+            z = zo + dz[:, None] * t
         tall = heights[owners[: len(seg)]][None, :]
         blocked |= np.any(crosses & (z < tall), axis=1)
     centers = scene.centers
