@@ -1,0 +1,158 @@
+"""Guards, controllers, runtime failure handling, journal and CLI exit codes."""
+
+import json
+import math
+
+import numpy as np
+import py_trees
+import pytest
+
+from behaviours.controllers.motion import CorrectCameraAngle
+from behaviours.guards.conditions import NotTrapped, ObstacleTrigger, Reached
+from behaviours.keys import COMMAND, OBSTACLES, POSE, ItemResult, MissionProgress
+from executive.cli import main
+from executive.core.frames import Pose2
+from executive.core.loader import load_mission
+from executive.core.records import Obstacles, PoseEstimate
+from executive.dryrun import dry_run
+from executive.journal import Journal, read_journal
+from tests.conftest import MISSIONS
+from tests.sim2d_helpers import make_scenario, scenario_file
+
+S = py_trees.common.Status
+
+
+@pytest.fixture(autouse=True)
+def fresh_blackboard():
+    py_trees.blackboard.Blackboard.clear()
+    yield
+    py_trees.blackboard.Blackboard.clear()
+
+
+def _writer(*keys):
+    client = py_trees.blackboard.Client(name="test")
+    for key in keys:
+        client.register_key(key=key.name, access=py_trees.common.Access.WRITE)
+    return client
+
+
+def _pose(x, y, theta=0.0, t=0.0):
+    p = Pose2(x, y, theta)
+    return PoseEstimate(t, p, np.eye(3) * 1e-4, p, 1.0)
+
+
+def test_obstacle_trigger_engages_below_r_oa_and_releases_with_hysteresis():
+    bb = _writer(OBSTACLES)
+    guard = ObstacleTrigger(r_oa=2.5, release_margin=0.3)
+    statuses = []
+    for r_c in (3.0, 2.4, 2.6, 2.79, 2.81, 2.6):
+        bb.set(OBSTACLES.name, Obstacles(0.0, r_c, 0.0, np.zeros((0, 2))), overwrite=True)
+        guard.tick_once()
+        statuses.append(guard.status)
+    assert statuses == [S.FAILURE, S.SUCCESS, S.SUCCESS, S.SUCCESS, S.FAILURE, S.FAILURE]
+
+
+def test_not_trapped_fails_after_the_period_without_progress():
+    bb = _writer(POSE)
+    guard = NotTrapped(lambda: Pose2(10.0, 0.0, 0.0), period=5.0)
+    for t in np.arange(0.0, 4.9, 0.1):  # progressing
+        bb.set(POSE.name, _pose(t, 0.0, t=t), overwrite=True)
+        guard.tick_once()
+        assert guard.status == S.SUCCESS
+    for t in np.arange(5.0, 10.5, 0.1):  # stuck at x = 4.9
+        bb.set(POSE.name, _pose(4.9, 0.0, t=t), overwrite=True)
+        guard.tick_once()
+    assert guard.status == S.FAILURE and "no progress" in guard.feedback_message
+
+
+def test_reached_needs_position_and_heading():
+    bb = _writer(POSE)
+    guard = Reached(lambda: Pose2(1.0, 1.0, 0.5), 0.05, math.radians(2))
+    for pose, expected in (
+        (_pose(1.0, 1.0, 0.5), S.SUCCESS),
+        (_pose(1.0, 1.1, 0.5), S.FAILURE),
+        (_pose(1.0, 1.0, 0.6), S.FAILURE),
+    ):
+        bb.set(POSE.name, pose, overwrite=True)
+        guard.tick_once()
+        assert guard.status == expected
+
+
+def test_correct_camera_angle_turns_towards_the_target_then_succeeds():
+    mission = load_mission(MISSIONS / "a320" / "preflight.xml")
+    camera = mission.platform.cameras["front"]
+    feature = mission.aircraft.features["static-ports-left"]
+    node = CorrectCameraAngle(
+        camera, feature, mission.aircraft.origin_height, math.radians(20), max_omega=0.5
+    )
+    bb = _writer(POSE)
+    reader = py_trees.blackboard.Client(name="reader")
+    reader.register_key(key=COMMAND.name, access=py_trees.common.Access.READ)
+    # CP01 (6.5, 5.0) faces the ports at heading -90 (F); facing the tail they are to the
+    # robot's right in the mirrored frame F, so the base must turn.
+    for heading, expect in ((-math.pi / 2, S.SUCCESS), (0.0, S.RUNNING)):
+        pose_f = Pose2(6.5, 5.0, heading)
+        bb.set(POSE.name, PoseEstimate(0.0, pose_f, np.eye(3), pose_f, 1.0), overwrite=True)
+        node.tick_once()
+        assert node.status == expect
+        command = reader.get(COMMAND.name)
+        assert command.v == 0.0
+        if expect == S.RUNNING:
+            pan = node.required_pan(pose_f)
+            assert abs(pan) > math.radians(20) and np.sign(command.omega) == np.sign(pan)
+
+
+def test_an_exception_in_a_tick_stops_the_robot_and_fails_with_the_traceback(tmp_path, monkeypatch):
+    from behaviours.sensing.features import SenseFeatures
+
+    original = SenseFeatures.update
+
+    def flaky(self):
+        frame = self.bb.get("/sensors/frame")
+        if frame.stamp > 3.0:
+            raise RuntimeError("camera driver crashed")
+        return original(self)
+
+    monkeypatch.setattr(SenseFeatures, "update", flaky)
+    run = dry_run(make_scenario(tmp_path, mission_type="lab", mission="visual-servoing.xml"))
+    assert run.result.outcome == "failed"
+    assert "camera driver crashed" in run.result.reason
+    assert "RuntimeError" in run.result.traceback
+    assert run.robot.world.base.v_cmd == 0.0 and run.robot.world.base.omega_cmd == 0.0
+    assert any(e.kind == "fault" for e in run.result.events)
+
+
+def test_journal_tolerates_a_torn_last_line(tmp_path):
+    path = tmp_path / "journal.jsonl"
+    journal = Journal(path, "m")
+    result = ItemResult("CP1", "item", 1.0, True, "ptz", 0.1, 0.2, (1.0, 2.0, 0.0))
+    journal.record(1.0, MissionProgress("inspection", "CP1", "CP1", ("CP1",), (result,)), (1, 2, 3))
+    journal.close()
+    with path.open("a") as handle:
+        handle.write('{"t": 2.0, "event": "checkpoint-do')  # killed mid-write
+    progress, pose = read_journal(path)
+    assert progress.completed == ("CP1",) and progress.results == (result,)
+    assert pose == (1.0, 2.0, 3.0)
+
+
+def test_dry_run_exit_codes(tmp_path, capsys):
+    lab = MISSIONS / "lab" / "visual-servoing.xml"
+    assert main(["dry-run", str(lab), "--rate", "100", "--out", str(tmp_path / "a")]) == 2
+    broken = tmp_path / "broken.xml"
+    broken.write_text("<mission/>")
+    assert main(["dry-run", str(broken), "--out", str(tmp_path / "b")]) == 2
+    short = scenario_file(
+        tmp_path,
+        '<faults><bumper-hit bumper="front" at="3" duration="0.5"/></faults>',
+        mission_type="lab",
+        mission="visual-servoing.xml",
+    )
+    short.write_text(short.read_text().replace('seed="1">', 'seed="1" duration="20">'))
+    mission = short.parent.parent / "visual-servoing.xml"
+    code = main(
+        ["dry-run", str(mission), "--scenario", str(short), "--out", str(tmp_path / "c"), "--quiet"]
+    )
+    assert code == 1  # latched by the bumper, never reset: the mission did not complete
+    report = json.loads((tmp_path / "c" / "metrics.json").read_text())
+    assert report["outcome"] == "timeout" and report["safety_stops"][0]["kind"] == "estop-latched"
+    capsys.readouterr()
