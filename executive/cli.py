@@ -15,7 +15,7 @@ from pathlib import Path
 
 from executive import __version__
 from executive.core.loader import check_file, load_aircraft, load_mission, root_name
-from executive.core.problems import InvalidInputError, Problem
+from executive.core.problems import InvalidInputError, Problem, SourceLocation
 from executive.core.resources import missions_dir, shipped_mission_files
 from sim2d.scenario import check_scenario, load_scenario
 
@@ -137,6 +137,21 @@ def cmd_sim_view(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _report(problems: list[Problem]) -> int:
+    """Print problems on stderr, compiler-style; the bad-input exit code."""
+    for problem in problems:
+        print(f"{problem.where}: error: {problem.message} [{problem.code}]", file=sys.stderr)
+    return EXIT_BAD_INPUT
+
+
+def _check_mission_file(path: Path) -> list[Problem]:
+    """Every problem of ``path`` as a mission file (a valid non-mission is one too)."""
+    problems = check_any(path)
+    if not problems and root_name(path) != "mission":
+        problems = [Problem(SourceLocation(str(path), 1, 1), "not-a-mission", "not a mission file")]
+    return problems
+
+
 def _default_scenario(mission: Path) -> Path:
     return mission.resolve().parent / "scenarios" / "clear-apron.xml"
 
@@ -152,19 +167,13 @@ def cmd_dry_run(args: argparse.Namespace) -> int:
         print(f"--rate {args.rate:g}: the executive runs at 10 to 50 Hz", file=sys.stderr)
         return EXIT_BAD_INPUT
     mission_path: Path = args.mission
-    if root_name(mission_path) != "mission":
-        problems = check_any(mission_path)
-        for problem in problems or []:
-            print(f"{problem.where}: error: {problem.message} [{problem.code}]", file=sys.stderr)
-        if not problems:
-            print(f"{mission_path}: not a mission file", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    scenario_path = args.scenario or _default_scenario(mission_path)
-    problems = check_file(mission_path) + check_any(scenario_path)
+    problems = _check_mission_file(mission_path)
     if problems:
-        for problem in problems:
-            print(f"{problem.where}: error: {problem.message} [{problem.code}]", file=sys.stderr)
-        return EXIT_BAD_INPUT
+        return _report(problems)
+    scenario_path = args.scenario or _default_scenario(mission_path)
+    problems = check_any(scenario_path)
+    if problems:
+        return _report(problems)
     scenario = load_scenario(scenario_path)
     if scenario.mission.source != load_mission(mission_path).source:
         print(
@@ -190,9 +199,7 @@ def cmd_dry_run(args: argparse.Namespace) -> int:
             progress_out=sys.stderr if not args.quiet else None,
         )
     except CompileError as exc:
-        for problem in exc.problems:
-            print(f"{problem.where}: error: {problem.message} [{problem.code}]", file=sys.stderr)
-        return EXIT_BAD_INPUT
+        return _report(list(exc.problems))
     write_report(run, out)
     for warning in run.warnings:
         print(f"warning: {warning}", file=sys.stderr)
@@ -211,19 +218,13 @@ def cmd_show(args: argparse.Namespace) -> int:
     from executive import export
     from executive.compiler import CompileError, compile_mission
 
-    problems = check_any(args.mission)
-    if problems or root_name(args.mission) != "mission":
-        for problem in problems:
-            print(f"{problem.where}: error: {problem.message} [{problem.code}]", file=sys.stderr)
-        if not problems:
-            print(f"{args.mission}: not a mission file", file=sys.stderr)
-        return EXIT_BAD_INPUT
+    problems = _check_mission_file(args.mission)
+    if problems:
+        return _report(problems)
     try:
         compiled = compile_mission(load_mission(args.mission))
     except CompileError as exc:
-        for problem in exc.problems:
-            print(f"{problem.where}: error: {problem.message} [{problem.code}]", file=sys.stderr)
-        return EXIT_BAD_INPUT
+        return _report(list(exc.problems))
     root = compiled.root
     fmt = args.format
     if fmt in ("png", "svg"):
