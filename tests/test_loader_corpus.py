@@ -56,19 +56,7 @@ class Case:
     code: str
     message: str  # a substring of the message
     count: int = 1  # problems in total (all files)
-    place_bug: str | None = None  # known loader bug: the place/message test is xfail
-    count_bug: str | None = None  # known loader bug: the count test is xfail
 
-
-NO_BOUND = (
-    "schema range messages lose the bound: libxml2 writes '... allowed ('360')', the "
-    "regex in xmlsafe._plain_facet expects the quote at the very end, so the message "
-    "reads 'must be at most , not 450'"
-)
-NON_FINITE_TWICE = (
-    "NaN/INF give two schema problems, the second saying 'must be at most , not NaN' "
-    "(no bound, and NaN is not above the maximum); one clear 'not a finite number' is enough"
-)
 
 CASES: list[Case] = [
     # -- not XML, or not ours ---------------------------------------------------------------
@@ -398,13 +386,8 @@ CASES: list[Case] = [
 ]
 
 
-def _params(bug_field: str) -> list:
-    params = []
-    for case in CASES:
-        reason = getattr(case, bug_field)
-        marks = [pytest.mark.xfail(strict=True, reason=reason)] if reason else []
-        params.append(pytest.param(case, id=case.file.removesuffix(".xml"), marks=marks))
-    return params
+def _params() -> list:
+    return [pytest.param(case, id=case.file.removesuffix(".xml")) for case in CASES]
 
 
 def _same_file(problem: Problem, path: Path) -> bool:
@@ -528,7 +511,7 @@ def test_every_broken_file_has_an_expectation():
     assert len(on_disk) >= 30
 
 
-@pytest.mark.parametrize("case", _params("place_bug"))
+@pytest.mark.parametrize("case", _params())
 def test_problem_reported_at_its_place(case: Case):
     path = BROKEN / case.file
     problems = check_file(path)  # must not raise
@@ -544,7 +527,7 @@ def test_problem_reported_at_its_place(case: Case):
         assert "{urn:" not in p.message  # namespaces are stripped from schema messages
 
 
-@pytest.mark.parametrize("case", _params("count_bug"))
+@pytest.mark.parametrize("case", _params())
 def test_problem_count(case: Case):
     problems = check_file(BROKEN / case.file)
     assert len(problems) == case.count, _listing(problems)
@@ -631,8 +614,7 @@ def test_cli_json_lists_every_expected_problem(capsys):
             for p in entry["problems"]
             if Path(p["file"]).resolve() == (BROKEN / case.file).resolve()
         }
-        if case.place_bug is None:
-            assert (case.line, case.code) in found, (case.file, found)
+        assert (case.line, case.code) in found, (case.file, found)
 
 
 def test_cli_json_valid_file(capsys):
@@ -723,26 +705,10 @@ def test_xxe_secret_never_leaks(tmp_path, secret, capsys, template, encoding):
         assert "Traceback" not in run.stderr
 
 
-UTF16_DTD = (
-    "a UTF-16 file slips past the byte scan for '<!DOCTYPE' in xmlsafe.parse_bytes, so "
-    "libxml2 processes the internal subset before the docinfo.doctype check: "
-)
-
-
-UTF16_KNOWN_BUGS: dict[tuple[str, str], str] = {}
-
-
 @pytest.mark.parametrize(
     ("template", "encoding"),
     [
-        pytest.param(
-            t,
-            e,
-            id=f"{t.removesuffix('.xml')}-{e}",
-            marks=[pytest.mark.xfail(strict=True, reason=UTF16_KNOWN_BUGS[t, e])]
-            if (t, e) in UTF16_KNOWN_BUGS
-            else [],
-        )
+        pytest.param(t, e, id=f"{t.removesuffix('.xml')}-{e}")
         for t in [*XXE_TEMPLATES, "mission-billion-laughs.xml"]
         for e in ENCODINGS
     ],
