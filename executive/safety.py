@@ -95,6 +95,8 @@ import shapely
 from shapely.geometry import Point
 from shapely.geometry.base import BaseGeometry
 
+from behaviours.laws import estop
+from behaviours.laws.estop import EStopLatch
 from executive.core.frames import AircraftPlacement, FloatArray
 from executive.core.model import Circle, ForbiddenZone, Frame, Mission
 from executive.core.records import (
@@ -110,6 +112,12 @@ ESTOP_LATCHED = "estop-latched"
 ESTOP_RELEASED = "estop-released"
 ESTOP_RESET = "estop-reset"
 RESET_REFUSED = "reset-refused"
+_LATCH_EVENTS = {
+    estop.LATCHED: ESTOP_LATCHED,
+    estop.RELEASED: ESTOP_RELEASED,
+    estop.RESET: ESTOP_RESET,
+    estop.RESET_REFUSED: RESET_REFUSED,
+}
 FAULT_STOP = "fault-stop"
 STALE_SENSOR = "stale-sensor"
 SENSOR_FRESH = "sensor-fresh"
@@ -476,11 +484,7 @@ class SafetyLayer:
         self._rest_sweep = 0.0  # sweep after the last output's own period (NaN: unknown)
         self._binding = False  # a geofence rule could bind on the last period
         # e-stop latch
-        self._latched = False
-        self._cause: str | None = None
-        self._estop_reason: str | None = None
-        self._clear_since: float | None = None
-        self._reset_before = False
+        self.latch = EStopLatch(mission.safety.r_es, mission.safety.estop_hold)
         # fault latch and stale data
         self._fault: str | None = None
         self._fault_stamp = -math.inf
@@ -539,8 +543,6 @@ class SafetyLayer:
         reset_requested: bool = False,
     ) -> VelocityCommand:
         """The command to send for the tree's ``command``; see the module docstring."""
-        rising = reset_requested and not self._reset_before
-        self._reset_before = reset_requested
         # 0. operator reset of a fault signalled before this call
         if reset_requested and self._fault is not None and self._fault_stamp < now:
             self._emit(now, ESTOP_RESET, f"operator reset: fault cleared ({self._fault})")
@@ -550,7 +552,7 @@ class SafetyLayer:
         if bad is not None:
             self.fault(now, f"non-finite command: {bad}")
         # 2. e-stop latch
-        self._update_estop(now, frame, obstacles, reset_requested, rising)
+        self._update_estop(now, frame, obstacles, reset_requested)
         # 3. stale data
         self._update_stale(now, frame, pose, obstacles)
         stop = self._stop_reason()
@@ -563,7 +565,7 @@ class SafetyLayer:
             self._geofence_event(now, _NONE, zone, d_min, "")
             self._limit_events(now, set())
             self.status = SafetyStatus(
-                self._latched, self._cause, stop, scale, d_min, zone, forced_stop=True
+                self.latch.latched, self.latch.cause, stop, scale, d_min, zone, forced_stop=True
             )
             return self._zero()
 
@@ -605,8 +607,8 @@ class SafetyLayer:
             out_cmd = VelocityCommand(out.v, out.w, pan_tilt)
         stopped = f"geofence: {why}" if level >= _STOP else None
         self.status = SafetyStatus(
-            self._latched,
-            self._cause,
+            self.latch.latched,
+            self.latch.cause,
             stopped,
             scale,
             d_min,
@@ -617,74 +619,14 @@ class SafetyLayer:
 
     # -- e-stop, faults, stale data ---------------------------------------------------------------
     def _update_estop(
-        self,
-        now: float,
-        frame: SensorFrame,
-        obstacles: Obstacles | None,
-        reset: bool,
-        rising: bool,
+        self, now: float, frame: SensorFrame, obstacles: Obstacles | None, reset: bool
     ) -> None:
-        r_es = self.safety.r_es
-        bumper = frame.bumpers.any
+        """The shared latch law (behaviours.laws.estop); its transitions become events."""
+        pressed = tuple(side for side in ("front", "rear") if getattr(frame.bumpers, side))
         closest = obstacles.closest if obstacles is not None else None
-        near = closest is not None and not closest >= r_es  # NaN counts as near
-        if bumper or near:
-            cause = "bumper" if bumper or self._cause == "bumper" else "obstacle"
-            if bumper:
-                sides = [s for s in ("front", "rear") if getattr(frame.bumpers, s)]
-                reason, value = f"{' and '.join(sides)} bumper pressed", None
-            else:
-                reason = f"obstacle at {closest:.3f} m < r_ES {r_es:.2f} m"
-                value = closest
-            if not self._latched or cause != self._cause:
-                self._emit(now, ESTOP_LATCHED, reason, value)
-                self._estop_reason = reason
-            self._latched, self._cause = True, cause
-            self._clear_since = None
-        if not self._latched:
-            return
-        if self._cause == "bumper":
-            if reset and not bumper:
-                if near:
-                    self._cause = "obstacle"
-                    self._clear_since = None
-                    self._emit(
-                        now,
-                        ESTOP_RESET,
-                        "operator reset of the bumper latch; an obstacle is still inside "
-                        f"r_ES ({closest:.2f} m): held until it is clear",
-                        closest,
-                    )
-                else:
-                    self._release(now, ESTOP_RESET, "operator reset (bumper released)")
-            elif rising and bumper:
-                self._emit(now, RESET_REFUSED, "reset refused: a bumper is still pressed")
-            return
-        # obstacle latch
-        if near or obstacles is None:
-            self._clear_since = None
-            return
-        if reset:
-            self._release(now, ESTOP_RESET, "operator reset (zone clear)", closest)
-            return
-        if self._clear_since is None:
-            self._clear_since = now
-        if now - self._clear_since >= self.safety.estop_hold:
-            self._release(
-                now,
-                ESTOP_RELEASED,
-                f"zone clear for {self.safety.estop_hold:g} s (r_c {closest:.2f} m)",
-                closest,
-            )
-
-    def _release(self, now: float, kind: str, reason: str, value: float | None = None) -> None:
-        self._latched, self._cause, self._estop_reason, self._clear_since = (
-            False,
-            None,
-            None,
-            None,
-        )
-        self._emit(now, kind, reason, value)
+        self.latch.update(now, closest, pressed, reset)
+        for event in self.latch.events:
+            self._emit(now, _LATCH_EVENTS[event.kind], event.reason, event.value)
 
     def _update_stale(
         self,
@@ -724,8 +666,8 @@ class SafetyLayer:
         self._stale = stale
 
     def _stop_reason(self) -> str | None:
-        if self._latched:
-            return f"e-stop ({self._cause}): {self._estop_reason}"
+        if self.latch.latched:
+            return f"e-stop ({self.latch.cause}): {self.latch.reason}"
         if self._fault is not None:
             return f"fault: {self._fault}"
         if self._stale:

@@ -34,9 +34,10 @@ class EmergencyStop(Guard):
         obstacles: Obstacles | None = self.read(OBSTACLES)
         frame: SensorFrame = self.read(SENSOR_FRAME)
         operator: OperatorRequests = self.read(OPERATOR, OperatorRequests())
-        r_c = obstacles.closest if obstacles is not None else math.inf
+        r_c = obstacles.closest if obstacles is not None else None
         latched = self.latch.update(frame.stamp, r_c, frame.bumpers.any, operator.reset_estop)
-        self.feedback_message = self.latch.reason if latched else f"clear (r_c {r_c:.2f} m)"
+        shown = "unknown" if r_c is None else f"{r_c:.2f} m"
+        self.feedback_message = self.latch.reason if latched else f"clear (r_c {shown})"
         return Status.SUCCESS if latched else Status.FAILURE
 
 

@@ -8,15 +8,13 @@ placement (the nominal parking pose until the laser registration measures it).
 
 from __future__ import annotations
 
-import math
-
 import py_trees
 
 from behaviours.base import Node
 from behaviours.keys import POSE, SENSOR_FRAME
 from behaviours.laws.localisation import PoseFilter
 from executive.core.frames import AircraftPlacement, Pose2
-from executive.core.records import PoseEstimate, SensorFrame
+from executive.core.records import SensorFrame
 
 
 class Localise(Node):
@@ -52,16 +50,8 @@ class Localise(Node):
             self.filter.update_gps(gps)
             self._gps_stamp = gps.stamp
             sources.append("gps")
-        pose_a = self.filter.pose
-        estimate = PoseEstimate(
-            stamp=frame.stamp,
-            pose_a=pose_a,
-            covariance=self.filter.covariance,
-            pose_f=self.placement.pose_to_aircraft(pose_a),
-            confidence=self.filter.confidence,
-            sources=tuple(sources),
-        )
+        estimate = self.filter.estimate(frame.stamp, self.placement, tuple(sources))
         self.write(POSE, estimate)
-        sigma = math.sqrt(max(estimate.covariance[0, 0] + estimate.covariance[1, 1], 0.0))
+        sigma = self.filter.position_sigma
         self.feedback_message = f"sigma {sigma:.3f} m, confidence {estimate.confidence:.2f}"
         return py_trees.common.Status.SUCCESS
