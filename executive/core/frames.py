@@ -190,6 +190,28 @@ class AircraftPlacement:
         return self.origin_height - height
 
 
+def aircraft_points_from_robot(pose_f: Pose2, points_r: ArrayLike) -> FloatArray:
+    """Ground points in R (x forward, y left) -> (x_F, y_F) for a robot at ``pose_f``.
+
+    F is mirrored seen from above, so this is a reflection, not a rotation: the robot's
+    +x maps to (cos h, sin h) and its +y (left) to (sin h, -cos h), h = ``pose_f.theta``.
+    Equivalently ``mirror(Pose2(x_F, -y_F, -h).apply(p))`` with mirror (x, y) -> (x, -y).
+    Accepts (2,) or (N, 2).
+    """
+    pts = np.asarray(points_r, dtype=float)
+    c, s = math.cos(pose_f.theta), math.sin(pose_f.theta)
+    m = np.array([[c, s], [s, -c]])
+    return pts @ m.T + np.array([pose_f.x, pose_f.y])
+
+
+def robot_points_from_aircraft(pose_f: Pose2, points_f: ArrayLike) -> FloatArray:
+    """Inverse of :func:`aircraft_points_from_robot` (the reflection is its own inverse)."""
+    pts = np.asarray(points_f, dtype=float) - np.array([pose_f.x, pose_f.y])
+    c, s = math.cos(pose_f.theta), math.sin(pose_f.theta)
+    m = np.array([[c, s], [s, -c]])
+    return pts @ m  # m is symmetric and orthogonal: m^-1 = m^T = m
+
+
 def aircraft_from_robot(pose_f: Pose2, origin_height: float) -> Transform3:
     """3D transform F <- R for a robot standing on the ground at ``pose_f`` (pose in F).
 

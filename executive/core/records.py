@@ -12,13 +12,15 @@ coordinates (u right, v down) in the camera's output image.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from enum import IntEnum, StrEnum
 from types import MappingProxyType
 
 import numpy as np
 
-from executive.core.frames import FloatArray, Pose2
+from executive.core.frames import AircraftPlacement, FloatArray, Pose2
 
 _EMPTY: Mapping = MappingProxyType({})
 
@@ -171,13 +173,29 @@ class VelocityCommand:
 
 
 # -- executive state on the blackboard ------------------------------------------------------------
+class FrameReference(StrEnum):
+    """What the robot's pose in the aircraft frame F is anchored to (seed lines 1030-1040).
+
+    ``nominal``: the mission's parking pose (no registration yet); ``aircraft``: a recent
+    laser registration of the aircraft; ``checkpoint``: registration lost, the pose is
+    carried by odometry from the last checkpoint reached (the thesis's back-up frame).
+    """
+
+    NOMINAL = "nominal"
+    AIRCRAFT = "aircraft"
+    CHECKPOINT = "checkpoint"
+
+
 @dataclass(frozen=True, slots=True, eq=False)
 class PoseEstimate:
     """The robot's estimated pose at ``stamp``.
 
     ``pose_a`` in the airport frame with its 3x3 ``covariance`` (x, y, theta); ``pose_f``
-    the same pose in the aircraft frame, through the executive's current idea of where
-    the aircraft stands; ``confidence`` in [0, 1] summarises the covariance (1: sure).
+    the same pose in the aircraft frame, through the executive's current estimate of where
+    the aircraft stands (``placement``), with its own 3x3 ``covariance_f``; ``confidence``
+    in [0, 1] summarises the covariance in A, ``confidence_f`` the one in F (1: sure).
+    ``reference`` says what ``pose_f`` is anchored to and ``anchor`` names it (the
+    checkpoint id when the reference is the last checkpoint).
     """
 
     stamp: float
@@ -186,6 +204,56 @@ class PoseEstimate:
     pose_f: Pose2
     confidence: float
     sources: tuple[str, ...] = ()
+    placement: AircraftPlacement | None = None
+    covariance_f: FloatArray | None = None
+    confidence_f: float = 1.0
+    reference: FrameReference = FrameReference.NOMINAL
+    anchor: str = ""
+
+
+class Danger(IntEnum):
+    """How much a tracked obstacle matters to the robot (ordered: higher is worse).
+
+    ``NONE``: far and not on the path; ``NEAR``: within the avoidance trigger distance
+    but not on the path; ``ON_PATH``: its predicted motion crosses the robot's swept
+    corridor within the horizon; ``IMMINENT``: on the path with a time to contact shorter
+    than the imminence threshold.
+    """
+
+    NONE = 0
+    NEAR = 1
+    ON_PATH = 2
+    IMMINENT = 3
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class TrackedObstacle:
+    """One obstacle tracked across scans, in the robot frame R at the record's stamp.
+
+    ``kind``: ``line``, ``circle`` or ``blob`` (laser clusters, RANSAC-classified), or
+    ``zone`` (a forbidden zone's edge injected as a virtual obstacle). ``position`` is the
+    tracked point (circle centre, or centroid) and ``velocity`` the ground velocity, both
+    expressed in R's axes; ``covariance`` the 4x4 covariance of (x, y, vx, vy).
+    ``size`` is the radius of a circle enclosing the cluster, ``clearance`` the distance
+    from the robot's footprint to its nearest point, ``age`` the time since it was first
+    seen (s). ``shape`` holds the fitted parameters in R: (cx, cy, r) for a circle,
+    (x0, y0, x1, y1) for a line's end points, () otherwise.
+    """
+
+    id: int
+    kind: str
+    position: tuple[float, float]
+    velocity: tuple[float, float]
+    covariance: FloatArray
+    size: float
+    clearance: float
+    age: float
+    danger: Danger = Danger.NONE
+    shape: tuple[float, ...] = ()
+
+    @property
+    def speed(self) -> float:
+        return math.hypot(*self.velocity)
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -195,12 +263,25 @@ class Obstacles:
     ``closest`` is r_c: the distance from the robot's footprint (not its centre) to the
     nearest laser return, ``inf`` when there is none; ``bearing`` its direction in the
     robot frame; ``points`` every return of both scanners in the robot frame (N, 2).
+    ``tracks`` the tracked obstacles (real ones and forbidden-zone edges, kind ``zone``);
+    ``virtual`` the zone-edge points injected near the robot (M, 2) in R, and
+    ``closest_virtual`` their distance from the footprint. The e-stop uses ``closest``
+    (real returns only: a virtual wall never moves away, so it must not latch the e-stop);
+    avoidance uses :attr:`closest_any`.
     """
 
     stamp: float
     closest: float
     bearing: float
     points: FloatArray
+    tracks: tuple[TrackedObstacle, ...] = ()
+    virtual: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
+    closest_virtual: float = math.inf
+
+    @property
+    def closest_any(self) -> float:
+        """min(r_c, closest virtual point): what obstacle avoidance reacts to."""
+        return min(self.closest, self.closest_virtual)
 
 
 @dataclass(frozen=True, slots=True)
