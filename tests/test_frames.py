@@ -12,8 +12,12 @@ from executive.core.frames import (
     Pose2,
     Transform3,
     aircraft_from_robot,
+    aircraft_points_from_robot,
+    mirror_pose,
+    moved_in_aircraft,
     pan_tilt_towards,
     robot_from_camera,
+    robot_points_from_aircraft,
     rot_x,
     rot_y,
     rot_z,
@@ -141,3 +145,23 @@ def test_pan_tilt_towards_puts_target_on_optical_axis(mount, yaw, target):
     p_c = c_from_r.apply(np.array(target, dtype=float))
     assert p_c[2] > 0
     assert np.allclose(p_c[:2] / p_c[2], 0.0, atol=1e-6)
+
+
+@given(pose_f=poses(), delta=poses(), pts=st.lists(st.tuples(small, small), min_size=1, max_size=5))
+def test_moving_in_the_aircraft_frame_agrees_with_the_airport_frame(pose_f, delta, pts):
+    """A motion delta in R moves the robot the same whether composed in A or in F."""
+    placement = AircraftPlacement(3.0, -2.0, 1.1)
+    pose_a = placement.pose_to_airport(pose_f)
+    after_a = pose_a @ delta
+    after_f = moved_in_aircraft(pose_f, delta)
+    expected = placement.pose_to_aircraft(after_a)
+    assert after_f.distance_to(expected) < 1e-6
+    assert abs(wrap_angle(after_f.theta - expected.theta)) < 1e-9
+    back = mirror_pose(mirror_pose(pose_f))
+    assert (back.x, back.y) == (pose_f.x, pose_f.y)
+    assert abs(wrap_angle(back.theta - pose_f.theta)) < 1e-12
+    # points seen from the robot land on the same aircraft points either way
+    p = np.array(pts)
+    in_f = aircraft_points_from_robot(pose_f, p)
+    assert np.allclose(in_f, placement.to_aircraft_xy(pose_a.apply(p)), atol=1e-6)
+    assert np.allclose(robot_points_from_aircraft(pose_f, in_f), p, atol=1e-6)

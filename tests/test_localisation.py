@@ -580,12 +580,105 @@ def test_confidence_mapping(sigma, low, high):
 
 def test_estimate_record():
     placement = AircraftPlacement(10.0, 5.0, 0.3)
-    f = PoseFilter(Pose2(2.0, 1.0, 0.4), track=TRACK)
-    est = f.estimate(12.5, placement, ("wheels", "gps"))
+    f = PoseFilter(Pose2(2.0, 1.0, 0.4), track=TRACK, placement=placement)
+    est = f.estimate(12.5, ("wheels", "gps"))
     assert isinstance(est, PoseEstimate)
     assert est.stamp == 12.5
     assert est.pose_a == f.pose
     assert est.pose_f == placement.pose_to_aircraft(f.pose)
+    assert est.placement is not None
+    assert (est.placement.x, est.placement.y) == pytest.approx((placement.x, placement.y))
+    assert est.placement.heading == pytest.approx(placement.heading)
+    assert est.pose_f.x == pytest.approx(f.pose_f.x)
+    assert est.pose_f.y == pytest.approx(f.pose_f.y)
+    assert est.pose_f.theta == pytest.approx(f.pose_f.theta)
     assert est.covariance == pytest.approx(f.covariance)
     assert est.confidence == f.confidence
     assert est.sources == ("wheels", "gps")
+
+
+# -- the aircraft placement states and the laser registration ----------------------------------
+NOMINAL = AircraftPlacement(0.0, 0.0, math.pi / 2)
+TRUE_PLACEMENT = AircraftPlacement(1.2, -0.9, math.pi / 2 + math.radians(10.0))
+
+
+def _pose_error(a: Pose2, b: Pose2) -> tuple[float, float]:
+    return a.distance_to(b), abs(wrap_angle(a.theta - b.theta))
+
+
+def test_registration_on_a_pinned_robot_moves_the_aircraft_not_the_robot():
+    robot_a = Pose2(-8.0, -6.0, 0.3)
+    f = PoseFilter(robot_a, track=TRACK, sigma_xy=0.02, sigma_theta=0.005, placement=NOMINAL)
+    truth_f = TRUE_PLACEMENT.pose_to_aircraft(robot_a)
+    assert f.pose_f.distance_to(truth_f) > 1.0  # the nominal placement is 1.5 m off
+    assert f.update_registration(truth_f, np.diag([0.01**2, 0.01**2, 0.002**2]))
+    d, e = _pose_error(f.pose_f, truth_f)
+    assert d < 0.02 and e < math.radians(0.2)
+    est = f.placement
+    assert math.hypot(est.x - TRUE_PLACEMENT.x, est.y - TRUE_PLACEMENT.y) < 0.1
+    assert abs(wrap_angle(est.heading - TRUE_PLACEMENT.heading)) < math.radians(0.5)
+    assert f.pose.distance_to(robot_a) < 0.05  # the robot barely moved
+    cov = f.covariance_f
+    assert np.allclose(cov, cov.T) and np.linalg.eigvalsh(cov).min() > 0.0
+    assert f.confidence_f > 0.9
+    assert f.registrations_accepted == 1
+
+
+def test_registration_of_a_lost_robot_moves_the_robot_not_the_aircraft():
+    truth_a = Pose2(-8.0, -6.0, 0.3)
+    drifted = Pose2(-8.6, -5.5, 0.3 + math.radians(4.0))
+    f = PoseFilter(
+        drifted,
+        track=TRACK,
+        sigma_xy=0.8,
+        sigma_theta=0.1,
+        placement=TRUE_PLACEMENT,
+        sigma_placement_xy=0.01,
+        sigma_placement_theta=0.001,
+    )
+    truth_f = TRUE_PLACEMENT.pose_to_aircraft(truth_a)
+    assert f.update_registration(truth_f, np.diag([0.01**2, 0.01**2, 0.002**2]))
+    d, e = _pose_error(f.pose, truth_a)
+    assert d < 0.03 and e < math.radians(0.3)
+    p = f.placement
+    assert math.hypot(p.x - TRUE_PLACEMENT.x, p.y - TRUE_PLACEMENT.y) < 0.02
+
+
+def test_registration_gate_refuses_an_outlier_and_reset_placement_accepts_it():
+    robot_a = Pose2(5.0, -10.0, 2.0)
+    f = PoseFilter(robot_a, track=TRACK, sigma_xy=0.02, sigma_theta=0.005, placement=NOMINAL)
+    truth_f = TRUE_PLACEMENT.pose_to_aircraft(robot_a)
+    r = np.diag([0.01**2, 0.01**2, 0.002**2])
+    assert f.update_registration(truth_f, r)
+    wrong = Pose2(truth_f.x + 2.0, truth_f.y, truth_f.theta)
+    before = f.state
+    assert not f.update_registration(wrong, r, gate=CHI2_999[3])
+    assert np.array_equal(f.state, before)
+    assert f.registrations_rejected == 1
+    f.reset_placement(wrong, r)
+    d, e = _pose_error(f.pose_f, wrong)
+    assert d < 1e-9 and e < 1e-9
+    assert f.update_registration(wrong, r, gate=CHI2_999[3])
+    p = f.state_covariance
+    assert np.allclose(p, p.T) and np.linalg.eigvalsh(p).min() > -1e-12
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    dx=st.floats(-1.5, 1.5),
+    dy=st.floats(-1.5, 1.5),
+    dh=st.floats(-math.radians(10.0), math.radians(10.0)),
+    rx=st.floats(-30.0, 30.0),
+    ry=st.floats(-40.0, 5.0),
+    rh=st.floats(-math.pi, math.pi),
+)
+def test_iterated_registration_update_recovers_any_parking_offset(dx, dy, dh, rx, ry, rh):
+    """Offsets up to 1.5 m / 10 deg (beyond the 1-sigma prior): one iterated update lands
+    the robot's pose in F on the measurement, wherever the robot stands around the aircraft."""
+    truth = AircraftPlacement(dx, dy, math.pi / 2 + dh)
+    robot_a = Pose2(rx, ry, rh)
+    f = PoseFilter(robot_a, track=TRACK, sigma_xy=0.05, sigma_theta=0.01, placement=NOMINAL)
+    truth_f = truth.pose_to_aircraft(robot_a)
+    assert f.update_registration(truth_f, np.diag([0.01**2, 0.01**2, 0.002**2]))
+    d, e = _pose_error(f.pose_f, truth_f)
+    assert d < 0.02 and e < math.radians(0.2)

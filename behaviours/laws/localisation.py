@@ -7,7 +7,7 @@ and :meth:`PoseFilter.update_heading`. Pure numpy and ``math``; no py_trees impo
 
 State (airport frame A: x east, y north, headings counter-clockwise from +x_A)::
 
-    s = (x, y, theta, b, k, c)
+    s = (x, y, theta, b, k, c, p_x, p_y, p_phi)
 
 * ``x, y`` (m), ``theta`` (rad, kept in [-pi, pi)): the pose of the robot frame R in A;
 * ``b`` (rad/s): the gyro bias, IMU reading = body yaw rate + b + white noise;
@@ -17,6 +17,17 @@ State (airport frame A: x east, y north, headings counter-clockwise from +x_A)::
   body really moves (longitudinal slip, ~0.95-1.0). An addition to the minimal
   (x, y, theta, b, k) filter: sim2d's default 2 % longitudinal slip alone drifts 0.5 m
   over a 25 m GPS outage, and GPS observes c on every straight run.
+* ``p_x, p_y, p_phi``: where the aircraft stands, as the proper SE(2) pose
+  ``A <- G`` of the mirrored aircraft ground frame G = (x_F, -y_F) (origin at the nose
+  tip, ``p_phi`` the heading of +x_F in A; see :mod:`executive.core.frames`). The
+  aircraft does not move, so these states have no process noise; their prior is the
+  mission's nominal parking pose with ``sigma_placement_xy`` / ``sigma_placement_theta``.
+  Augmenting the filter with them (rather than a separate placement estimate) keeps the
+  correlation between "where the robot is in A" and "where the aircraft is in A": a laser
+  registration measures only their *relative* pose, and the filter splits a correction
+  between the two by their covariances (GPS on the apron pins the robot, so the
+  registration moves the aircraft; in a hangar both drift together and the registration
+  still fixes the robot's pose in F, which is what the checkpoints need).
 
 Models:
 
@@ -50,7 +61,17 @@ Models:
   is neglected, harmless as the wheel noise dominates this measurement's variance.)
 
 Measurements: GPS position (H = [I2 0], gated by the Mahalanobis distance), heading
-(H = e3) and full pose (H = [I3 0]); innovations in theta are wrapped to [-pi, pi).
+(H = e3), full pose in A (H = [I3 0]) and the robot's pose in the aircraft frame from a
+laser registration (:meth:`PoseFilter.update_registration`): in G,
+
+    z = (A <- G)^-1 (A <- R):  z_x =  c (x - p_x) + s (y - p_y)
+                               z_y = -s (x - p_x) + c (y - p_y),  z_theta = theta - p_phi
+
+with c = cos p_phi, s = sin p_phi, so dz/d(x, y, theta) = [[c, s, 0], [-s, c, 0],
+[0, 0, 1]], dz/d(p_x, p_y) = -(the same 2x2 block) and dz/dp_phi = (z_y, -z_x, -1). The
+update is iterated (Gauss-Newton on the linearisation point, an iterated EKF) because the
+first registration can correct the placement by metres and degrees. Innovations in
+theta are wrapped to [-pi, pi).
 Updates use the Joseph form and the covariance is symmetrised after every step.
 
 :attr:`PoseFilter.confidence` maps the covariance to [0, 1]::
@@ -71,10 +92,20 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from executive.core.frames import AircraftPlacement, FloatArray, Pose2, wrap_angle
-from executive.core.records import GpsFix, ImuReading, PoseEstimate, WheelSpeeds
+from executive.core.records import (
+    FrameReference,
+    GpsFix,
+    ImuReading,
+    PoseEstimate,
+    RegistrationRecord,
+    WheelSpeeds,
+)
 
-N_STATES = 6
-"""(x, y, theta, b, k, c)."""
+N_STATES = 9
+"""(x, y, theta, b, k, c, p_x, p_y, p_phi)."""
+
+_MIRROR = np.diag([1.0, -1.0, -1.0])
+"""(x, y, heading) in F <-> in the mirrored ground frame G (an involution)."""
 
 CHI2_999 = {1: 10.828, 2: 13.816, 3: 16.266}
 """Chi-square 99.9% quantiles by degrees of freedom (Mahalanobis gates)."""
@@ -104,7 +135,8 @@ def _is_psd3(m: FloatArray) -> bool:
 
 
 class PoseFilter:
-    """EKF on (x, y, theta, b, k, c) for a skid-steer robot; see the module docstring."""
+    """EKF on (x, y, theta, b, k, c) for a skid-steer robot, augmented with the aircraft
+    placement (p_x, p_y, p_phi); see the module docstring."""
 
     def __init__(
         self,
@@ -135,6 +167,9 @@ class PoseFilter:
         gps_reset_after: int = 10,
         confidence_scale: float = 0.15,
         confidence_lever: float = 1.0,
+        placement: AircraftPlacement | None = None,
+        sigma_placement_xy: float = 1.0,
+        sigma_placement_theta: float = math.radians(6.0),
     ) -> None:
         """Start at ``initial`` with independent errors on every state.
 
@@ -149,7 +184,9 @@ class PoseFilter:
         squared Mahalanobis gate of a GPS fix; after ``gps_reset_after`` consecutive
         rejected fixes the filter deems itself lost and re-centres its position on the
         next fix (0: never). ``confidence_scale`` (m) and ``confidence_lever`` (m): see
-        :attr:`confidence`.
+        :attr:`confidence`. ``placement`` is the prior on where the aircraft stands (the
+        nominal parking pose; default: nose at the origin of A pointing north) with the
+        1-sigma ``sigma_placement_xy`` (m, each axis) and ``sigma_placement_theta`` (rad).
         """
         if track <= 0.0:
             raise ValueError(f"track must be positive, got {track}")
@@ -187,6 +224,13 @@ class PoseFilter:
         self._p[3, 3] = sigma_gyro_bias**2
         self._p[4, 4] = sigma_yaw_scale**2
         self._p[5, 5] = sigma_speed_scale**2
+        prior = placement or AircraftPlacement(0.0, 0.0, math.pi / 2)
+        self.origin_height = prior.origin_height
+        self._px, self._py, self._pphi = prior.x, prior.y, prior.x_axis_heading
+        self._p[6, 6] = self._p[7, 7] = sigma_placement_xy**2
+        self._p[8, 8] = sigma_placement_theta**2
+        self.registrations_accepted = 0
+        self.registrations_rejected = 0
 
     # -- state --------------------------------------------------------------------------
     def reset(self, pose: Pose2, cov: ArrayLike) -> None:
@@ -212,13 +256,70 @@ class PoseFilter:
 
     @property
     def state(self) -> FloatArray:
-        """(x, y, theta, b, k, c)."""
-        return np.array([self._x, self._y, self._theta, self._b, self._k, self._c])
+        """(x, y, theta, b, k, c, p_x, p_y, p_phi)."""
+        return np.array(
+            [
+                self._x,
+                self._y,
+                self._theta,
+                self._b,
+                self._k,
+                self._c,
+                self._px,
+                self._py,
+                self._pphi,
+            ]
+        )
 
     @property
     def state_covariance(self) -> FloatArray:
-        """6x6 covariance of :attr:`state`, a copy."""
+        """9x9 covariance of :attr:`state`, a copy."""
         return self._p.copy()
+
+    @property
+    def placement(self) -> AircraftPlacement:
+        """The estimated aircraft placement A <- F."""
+        return AircraftPlacement(
+            self._px, self._py, wrap_angle(self._pphi - math.pi), self.origin_height
+        )
+
+    @property
+    def placement_covariance(self) -> FloatArray:
+        """3x3 covariance of the placement (nose x, nose y, heading) in A, a copy."""
+        return self._p[6:, 6:].copy()
+
+    def _relative(self) -> tuple[FloatArray, FloatArray]:
+        """z (robot pose in G) and its 3x9 Jacobian H in the state (module docstring)."""
+        c, s = math.cos(self._pphi), math.sin(self._pphi)
+        dx, dy = self._x - self._px, self._y - self._py
+        zx, zy = c * dx + s * dy, -s * dx + c * dy
+        z = np.array([zx, zy, wrap_angle(self._theta - self._pphi)])
+        h = np.zeros((3, N_STATES))
+        h[0, 0], h[0, 1], h[1, 0], h[1, 1] = c, s, -s, c
+        h[2, 2] = 1.0
+        h[0, 6], h[0, 7], h[1, 6], h[1, 7] = -c, -s, s, -c
+        h[0, 8], h[1, 8], h[2, 8] = zy, -zx, -1.0
+        return z, h
+
+    @property
+    def pose_f(self) -> Pose2:
+        """The robot's pose in the aircraft frame F (heading from +x_F towards +y_F)."""
+        z, _ = self._relative()
+        return Pose2(float(z[0]), float(-z[1]), wrap_angle(float(-z[2])))
+
+    @property
+    def covariance_f(self) -> FloatArray:
+        """3x3 covariance of :attr:`pose_f` (x_F, y_F, heading_F): robot and placement."""
+        _, h = self._relative()
+        cov_g = h @ self._p @ h.T
+        return _MIRROR @ cov_g @ _MIRROR
+
+    @property
+    def confidence_f(self) -> float:
+        """:attr:`confidence` of the pose in F (same mapping, on :attr:`covariance_f`)."""
+        p = self.covariance_f
+        var = max(p[0, 0] + p[1, 1] + self.confidence_lever**2 * p[2, 2], 0.0)
+        return math.exp(-var / self.confidence_scale**2)
 
     @property
     def gyro_bias(self) -> float:
@@ -246,10 +347,16 @@ class PoseFilter:
         return math.exp(-var / self.confidence_scale**2)
 
     def estimate(
-        self, stamp: float, placement: AircraftPlacement, sources: tuple[str, ...] = ()
+        self,
+        stamp: float,
+        sources: tuple[str, ...] = (),
+        reference: FrameReference = FrameReference.NOMINAL,
+        anchor: str = "",
+        registration: RegistrationRecord | None = None,
     ) -> PoseEstimate:
-        """The blackboard record, with the pose also in the aircraft frame."""
+        """The blackboard record: the pose in A and, through the estimated placement, in F."""
         pose = self.pose
+        placement = self.placement
         return PoseEstimate(
             stamp=stamp,
             pose_a=pose,
@@ -257,6 +364,12 @@ class PoseFilter:
             pose_f=placement.pose_to_aircraft(pose),
             confidence=self.confidence,
             sources=sources,
+            placement=placement,
+            covariance_f=self.covariance_f,
+            confidence_f=self.confidence_f,
+            reference=reference,
+            anchor=anchor,
+            registration=registration,
         )
 
     # -- prediction ---------------------------------------------------------------------
@@ -417,6 +530,103 @@ class PoseFilter:
         y = np.array([pose.x - self._x, pose.y - self._y, wrap_angle(pose.theta - self._theta)])
         return self._correct_block(3, y, r, gate)
 
+    def update_registration(
+        self, pose_f: Pose2, cov_f: ArrayLike, gate: float | None = None, iterations: int = 3
+    ) -> bool:
+        """The robot's pose in F measured by a laser registration, with its 3x3 covariance
+        in (x_F, y_F, heading_F): an iterated EKF update of the robot pose *and* the
+        placement (module docstring). ``gate`` as in :meth:`update_pose`, applied to the
+        first linearisation. Returns whether the measurement was used.
+        """
+        r_f = np.asarray(cov_f, dtype=float)
+        if r_f.shape != (3, 3):
+            raise ValueError(f"registration covariance must be 3x3, got {r_f.shape}")
+        if not (
+            math.isfinite(pose_f.x) and math.isfinite(pose_f.y) and math.isfinite(pose_f.theta)
+        ):
+            return False
+        r = _MIRROR @ (0.5 * (r_f + r_f.T)) @ _MIRROR
+        if not _is_psd3(r):
+            return False
+        meas = np.array([pose_f.x, -pose_f.y, wrap_angle(-pose_f.theta)])
+        x0 = self.state
+        p0 = self._p
+        xi = x0.copy()
+        gain = h = s_mat = None
+        for it in range(max(1, iterations)):
+            self._set_state(xi)
+            z, h = self._relative()
+            s_mat = h @ p0 @ h.T + r
+            try:
+                s_inv = np.linalg.inv(s_mat)
+            except np.linalg.LinAlgError:
+                self._set_state(x0)
+                return False
+            # IEKF: x_{i+1} = x0 + K_i (m - h(x_i) - H_i (x0 - x_i))
+            y = meas - z
+            y[2] = wrap_angle(y[2])
+            if it == 0 and gate is not None and not float(y @ s_inv @ y) <= gate:
+                self._set_state(x0)
+                self.registrations_rejected += 1
+                return False
+            gain = p0 @ h.T @ s_inv
+            d = x0 - xi
+            d[2] = wrap_angle(d[2])
+            d[8] = wrap_angle(d[8])
+            step = gain @ (y - h @ d)
+            if not np.all(np.isfinite(step)):
+                self._set_state(x0)
+                return False
+            xi = x0 + step
+        assert gain is not None and h is not None
+        self._set_state(x0)
+        a_mat = self._eye - gain @ h
+        p = a_mat @ p0 @ a_mat.T + gain @ r @ gain.T
+        self._p = (p + p.T) * 0.5
+        self._add((xi - x0).tolist())
+        self.registrations_accepted += 1
+        return True
+
+    def reset_placement(self, pose_f: Pose2, cov_f: ArrayLike) -> None:
+        """Re-initialise the placement so that the current robot pose in A sits at
+        ``pose_f`` in F (a registration the filter's gate refused although the global
+        matching is sure of it: the placement, not the registration, was wrong). Its
+        covariance comes from the robot's and the registration's; correlations cleared.
+        """
+        r_f = np.asarray(cov_f, dtype=float)
+        g = Pose2(pose_f.x, -pose_f.y, wrap_angle(-pose_f.theta))
+        placement_g = self.pose @ g.inverse()
+        self._px, self._py, self._pphi = placement_g.x, placement_g.y, placement_g.theta
+        # p = pose_a (+) g^-1: first-order covariance from both
+        _, h = self._relative()
+        hr = h[:, :3]  # dz/d(robot pose)
+        hp = h[:, 6:]  # dz/d(placement)
+        hp_inv = np.linalg.inv(hp)
+        cov_g = _MIRROR @ (0.5 * (r_f + r_f.T)) @ _MIRROR
+        p_rr = self._p[:3, :3]
+        j_r = -hp_inv @ hr
+        cov_p = j_r @ p_rr @ j_r.T + hp_inv @ cov_g @ hp_inv.T
+        self._p[6:, :] = 0.0
+        self._p[:, 6:] = 0.0
+        self._p[6:, 6:] = 0.5 * (cov_p + cov_p.T)
+        # keep the robot-placement correlation the map implies
+        cross = p_rr @ j_r.T
+        self._p[:3, 6:] = cross
+        self._p[6:, :3] = cross.T
+
+    def _set_state(self, x: FloatArray) -> None:
+        (
+            self._x,
+            self._y,
+            self._theta,
+            self._b,
+            self._k,
+            self._c,
+            self._px,
+            self._py,
+            self._pphi,
+        ) = (float(v) for v in x)
+
     # -- the Kalman correction ----------------------------------------------------------
     def _correct_block(
         self, m: int, y: FloatArray, r: FloatArray, gate: float | None = None
@@ -483,7 +693,10 @@ class PoseFilter:
         return True
 
     def _add(self, dx: list[float]) -> None:
-        ddx, ddy, dth, db, dk, dc = dx
+        ddx, ddy, dth, db, dk, dc, dpx, dpy, dpphi = dx
+        self._px += dpx
+        self._py += dpy
+        self._pphi = wrap_angle(self._pphi + dpphi)
         self._x += ddx
         self._y += ddy
         self._theta = wrap_angle(self._theta + dth)

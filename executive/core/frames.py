@@ -190,6 +190,21 @@ class AircraftPlacement:
         return self.origin_height - height
 
 
+def mirror_pose(pose: Pose2) -> Pose2:
+    """A pose in F <-> the same pose in G = (x_F, -y_F), the proper (unmirrored) 2D frame
+    of the aircraft ground plane: ``(x, y, h) -> (x, -y, -h)``, its own inverse.
+
+    In G ordinary SE(2) algebra applies: ``mirror_pose(pose_f) @ delta`` is the robot
+    after a motion ``delta`` expressed in R.
+    """
+    return Pose2(pose.x, -pose.y, wrap_angle(-pose.theta))
+
+
+def moved_in_aircraft(pose_f: Pose2, delta_r: Pose2) -> Pose2:
+    """The robot's pose in F after it moved by ``delta_r`` (a pose in its own frame R)."""
+    return mirror_pose(mirror_pose(pose_f) @ delta_r)
+
+
 def aircraft_points_from_robot(pose_f: Pose2, points_r: ArrayLike) -> FloatArray:
     """Ground points in R (x forward, y left) -> (x_F, y_F) for a robot at ``pose_f``.
 
