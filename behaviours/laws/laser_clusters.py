@@ -1,0 +1,773 @@
+"""Laser obstacle detection: merge, clean, cluster and classify (thesis Algorithm 2.1).
+
+The thesis's obstacle pipeline (seed 000, lines 780-830, Algorithm 2.1 and Fig. 2.3):
+read the raw scans, clean them "by removing isolated points or accumulations of points
+that are below a predefined threshold", cluster the remaining points into obstacles, then
+run a RANSAC on every cluster "to determine whether any of these obstacles are either
+lines or circles". Tracking (the last step of Fig. 2.3) is :mod:`behaviours.laws.tracking`.
+
+Steps of :meth:`ScanClusterer.detect`, all vectorised (no loop over points; the only
+Python loops run over a few offsets, refinement rounds or candidate cluster pairs):
+
+1. **Merge** (:func:`merge_scans`): every scan of both scanners into the robot frame R
+   (:func:`behaviours.laws.obstacles.scan_to_robot`), keeping per point its range, scanner
+   and beam index, so that neighbourhoods in beam order are known. No-return beams
+   (``range_max``) are left out.
+2. **Clean** (:func:`neighbour_mask`): a point is kept only if ``min_neighbours`` of its
+   ``k`` nearest beams on either side (same scan) returned points within the adaptive
+   breakpoint distance below; isolated points and pairs (spurious returns, rain, dust,
+   the uniform outliers of a faulty scan) are removed.
+3. **Segment** (:func:`segment`): the adaptive breakpoint detector of Borges & Aldon
+   (2004) in beam order per scanner: two kept points ``p, q`` of one object satisfy
+   ``|p - q| <= D_max`` with
+
+       D_max = r * sin(dphi) / sin(lambda - dphi) + 3 sigma_r,     dphi = g * |dtheta|
+
+   ``r`` the smaller range of the two, ``g`` their beam gap (removed points and no-return
+   beams between them widen it), ``lambda`` the largest incidence angle of a surface still
+   seen as one object, ``sigma_r`` the range noise. Each kept point is tested against the
+   next ``skip`` kept points of its scan, and segments are the connected components of
+   the links, so segments separated only by removed outliers (or by a few stray points
+   kept among them) are one. Segments of fewer than ``min_points`` points are dropped
+   (the thesis's small accumulations). Segments of two scanners whose points touch
+   (within ``merge_distance``: an object beside the robot seen by both) are merged.
+   :func:`occluded` flags the clusters whose view is cut by something in front.
+4. **Classify** (:func:`fit_clusters`): RANSAC (Fischler & Bolles 1981) with the MSAC
+   truncated quadratic cost (Torr & Zisserman 2000), batched across clusters: a fixed
+   number of hypotheses per cluster, lines from 2 points and circles from 3 points drawn
+   in separate parts of the cluster (stratified in beam order, so that the points are
+   spread), scored on an evenly strided subsample. The best hypothesis is refined on its
+   inliers: a line by total least squares (principal axis of the inlier scatter), its
+   end points the projections of the extreme inliers; a circle by the algebraic fit of
+   Kasa (1976) then Gauss-Newton steps on the geometric distance. A cluster is a
+   **circle** when the circle model is valid (inlier fraction, radius bounds, centre on
+   the far side of the arc from the sensor) and it explains the points significantly
+   better than a line: the likelihood-ratio statistic
+   ``(cost_line - cost_circle) / sigma_r^2`` exceeds ``model_chi2`` (a line is the
+   limit of a circle of infinite radius, so the test prefers the line whenever it fits
+   within the noise: a short arc of a big circle stays a line); otherwise a **line** when
+   the line model is valid, else a **blob** (an L-shaped corner, a noisy group).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+from numpy.typing import NDArray
+
+from behaviours.laws.obstacles import footprint_distances, scan_to_robot
+from executive.core.frames import FloatArray, Pose2
+from executive.core.records import LaserScan
+
+IntArray = NDArray[np.intp]
+BoolArray = NDArray[np.bool_]
+
+#: Cluster kind codes (:attr:`Clusters.kind`) and their names (:data:`KIND_NAMES`).
+LINE, CIRCLE, BLOB = 0, 1, 2
+KIND_NAMES = ("line", "circle", "blob")
+
+
+@dataclass(frozen=True, slots=True)
+class ClusterParams:
+    """Parameters of the detector; the defaults suit a Hokuyo UTM-30LX (0.25 deg, 30 m).
+
+    ``range_sigma`` (m): 1-sigma range noise sigma_r (the UTM-30LX is specified at
+    +-30 mm up to 10 m; sim2d's default noise is 0.01 m). It sets the breakpoint margin
+    (3 sigma_r), the RANSAC inlier band (``inlier_sigmas`` sigma_r) and the scale of the
+    line/circle test.
+    ``incidence_limit`` (rad): lambda of the adaptive breakpoint detector; 10 deg as
+    recommended by Borges & Aldon (2004).
+    ``neighbour_beams``: k, the beams on either side searched for neighbours when
+    removing isolated points; ``min_neighbours`` of them must return within D_max at one
+    beam's gap (2: a pair of stray returns is removed too; a surface keeps its points).
+    ``skip``: each kept point is linked to the next ``skip`` kept points of its scan, so
+    that stray points kept among a surface's returns do not split it.
+    ``max_gap``: the largest beam gap (removed or no-return beams in between) across which
+    two points are still linked; D_max grows with the gap up to ``gap_scale_limit``
+    beams (``gap_scale_limit * |dtheta| < incidence_limit``), then stays there, so that a
+    hole does not link objects far apart in depth.
+    ``min_points``: segments with fewer points are dropped (the thesis's accumulations
+    below a threshold; 5 returns is a walker at about 25 m).
+    ``merge_distance`` (m): segments of two scanners are merged when a point of one is
+    this close to a point of the other.
+    ``ransac_hypotheses``: hypotheses per cluster and model; ``ransac_points``: at most
+    this many points of each cluster (evenly strided) score them.
+    ``refinements``: least-squares refits on the current inliers after RANSAC.
+    ``geometric_steps``: Gauss-Newton steps on the geometric circle distance after Kasa.
+    ``inlier_sigmas``: the inlier band is ``inlier_sigmas * range_sigma``.
+    ``min_inlier_fraction``: a model is valid only if it explains this share of points.
+    ``min_radius``, ``max_radius`` (m): bounds of a circle (poles to gear legs).
+    ``model_chi2``: likelihood-ratio threshold to prefer a circle over a line (9: about
+    0.3 % false circles for one extra degree of freedom).
+    ``seed``: seed of the RANSAC sampler (deterministic detector).
+    """
+
+    range_sigma: float = 0.02
+    incidence_limit: float = math.radians(10.0)
+    neighbour_beams: int = 4
+    min_neighbours: int = 2
+    max_gap: int = 16
+    gap_scale_limit: int = 4
+    skip: int = 3
+    min_points: int = 5
+    merge_distance: float = 0.3
+    ransac_hypotheses: int = 12
+    ransac_points: int = 16
+    refinements: int = 1
+    geometric_steps: int = 1
+    inlier_sigmas: float = 3.0
+    min_inlier_fraction: float = 0.8
+    min_radius: float = 0.05
+    max_radius: float = 2.0
+    model_chi2: float = 9.0
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if not self.range_sigma > 0.0:
+            raise ValueError("range_sigma must be > 0")
+        if not 0.0 < self.incidence_limit < math.pi / 2:
+            raise ValueError("incidence_limit must be in (0, pi/2)")
+        if not 1 <= self.min_neighbours <= 2 * self.neighbour_beams:
+            raise ValueError("need 1 <= min_neighbours <= 2 * neighbour_beams")
+        if not 1 <= self.gap_scale_limit <= self.max_gap or self.skip < 1:
+            raise ValueError("need 1 <= gap_scale_limit <= max_gap and skip >= 1")
+        if self.min_points < 3:
+            raise ValueError("min_points must be >= 3 (a circle needs 3 points)")
+        if self.ransac_hypotheses < 1 or self.ransac_points < 3:
+            raise ValueError("need ransac_hypotheses >= 1 and ransac_points >= 3")
+        if not 0.0 < self.min_radius < self.max_radius:
+            raise ValueError("need 0 < min_radius < max_radius")
+        if not 0.0 < self.min_inlier_fraction <= 1.0:
+            raise ValueError("min_inlier_fraction must be in (0, 1]")
+
+    @property
+    def inlier_band(self) -> float:
+        """epsilon (m): residuals below it are inliers; the MSAC cost saturates at it."""
+        return self.inlier_sigmas * self.range_sigma
+
+
+def breakpoint_distance(
+    ranges: FloatArray | float, dphi: FloatArray | float, incidence_limit: float, sigma: float
+) -> FloatArray:
+    """D_max of the adaptive breakpoint detector (Borges & Aldon 2004).
+
+    ``r sin(dphi) / sin(lambda - dphi) + 3 sigma``: the largest distance between two
+    returns of one surface seen at range ``r`` by beams ``dphi`` apart, when the surface
+    makes at least ``lambda`` with the beams, plus the range noise.
+    """
+    dphi = np.asarray(dphi, dtype=float)
+    return np.asarray(ranges) * np.sin(dphi) / np.sin(incidence_limit - dphi) + 3.0 * sigma
+
+
+@lru_cache(maxsize=32)
+def _ratio_table(increments: tuple[float, ...], incidence_limit: float, gaps: int) -> FloatArray:
+    """``sin(g dphi) / sin(lambda - g dphi)`` per scanner (rows) and beam gap g from 0 to
+    ``gaps`` (columns)."""
+    dphi = np.abs(np.asarray(increments))[:, None] * np.arange(gaps + 1)
+    if np.any(dphi[:, -1] >= incidence_limit):
+        raise ValueError("gap_scale_limit beams must span less than the incidence limit")
+    table = breakpoint_distance(1.0, dphi, incidence_limit, 0.0)
+    table.flags.writeable = False
+    return table
+
+
+# -- 1. merge -------------------------------------------------------------------------------------
+@dataclass(frozen=True, slots=True, eq=False)
+class ScanPoints:
+    """The returns of several scans in the robot frame R, scan after scan, in beam order.
+
+    ``x``, ``y`` (N,) in R; ``ranges`` (N,); ``scanner`` (N,) the index of the scan in
+    the input sequence; ``beam`` (N,) the beam index in its scan. ``sensors`` (S, 2) are
+    the scanners' positions in R and ``increments`` (S,) their angle increments.
+    """
+
+    stamp: float
+    x: FloatArray
+    y: FloatArray
+    ranges: FloatArray
+    scanner: IntArray
+    beam: IntArray
+    sensors: FloatArray
+    increments: tuple[float, ...]
+
+    def __len__(self) -> int:
+        return len(self.ranges)
+
+
+def merge_scans(scans: Sequence[tuple[LaserScan, Pose2]]) -> ScanPoints:
+    """Step 1: the returns of every ``(scan, mount)`` in R; ``mount`` is R <- scanner.
+
+    The stamp is the latest scan's (the caller passes the robot pose at that time).
+    """
+    xy, ranges, scanner, beam = [np.zeros((0, 2))], [np.zeros(0)], [], []
+    for k, (scan, mount) in enumerate(scans):
+        r = scan.ranges
+        xy.append(scan_to_robot(r, scan.angle_min, scan.angle_increment, scan.range_max, mount))
+        hit = np.flatnonzero(r < scan.range_max)
+        beam.append(hit)
+        ranges.append(r[hit])
+        scanner.append(np.full(len(hit), k, dtype=np.intp))
+    x, y = np.concatenate(xy).T.copy()
+    return ScanPoints(
+        stamp=max((s.stamp for s, _ in scans), default=0.0),
+        x=x,
+        y=y,
+        ranges=np.concatenate(ranges),
+        scanner=np.concatenate(scanner or [np.zeros(0, dtype=np.intp)]),
+        beam=np.concatenate(beam or [np.zeros(0, dtype=np.intp)]),
+        sensors=np.array([(m.x, m.y) for _, m in scans], dtype=float).reshape(-1, 2),
+        increments=tuple(float(s.angle_increment) for s, _ in scans),
+    )
+
+
+# -- 2. clean -------------------------------------------------------------------------------------
+class _Links:
+    """The breakpoint test between pairs of points of :class:`ScanPoints` (or a subset)."""
+
+    def __init__(
+        self, points: ScanPoints, params: ClusterParams, idx: IntArray | None = None
+    ) -> None:
+        table = _ratio_table(points.increments, params.incidence_limit, params.gap_scale_limit)
+        self.table = table.ravel()
+        self.columns = table.shape[1]
+        self.margin = 3.0 * params.range_sigma
+        sel = slice(None) if idx is None else idx
+        self.x, self.y, self.r = points.x[sel], points.y[sel], points.ranges[sel]
+        self.scanner, self.beam = points.scanner[sel], points.beam[sel]
+
+    def __call__(
+        self, a: IntArray | slice, b: IntArray | slice, max_gap: int, scale: int
+    ) -> BoolArray:
+        """True for the pairs (a, b) of one scanner, 1 to ``max_gap`` beams apart, closer
+        than D_max (:func:`breakpoint_distance` at the smaller range and their gap, the
+        gap counted at most ``scale`` beams)."""
+        sa = self.scanner[a]
+        gap = self.beam[b] - self.beam[a]
+        ok = (sa == self.scanner[b]) & (gap <= max_gap)
+        ratio = self.table.take(sa * self.columns + np.minimum(np.abs(gap), scale))
+        threshold = np.minimum(self.r[a], self.r[b]) * ratio + self.margin
+        dx = self.x[b] - self.x[a]
+        dy = self.y[b] - self.y[a]
+        ok &= dx * dx + dy * dy <= threshold * threshold
+        return ok
+
+    def window(self, count: int, max_gap: int, scale: int) -> tuple[IntArray, IntArray]:
+        """The linked pairs (a, b) with ``a < b <= a + count`` (positions in this
+        subset), as two arrays."""
+        n = len(self.x)
+        a, b = [np.zeros(0, np.intp)], [np.zeros(0, np.intp)]
+        for j in range(1, min(count, n - 1) + 1):
+            a.append(np.flatnonzero(self(slice(0, n - j), slice(j, n), max_gap, scale)))
+            b.append(a[-1] + j)
+        return np.concatenate(a), np.concatenate(b)
+
+
+def neighbour_mask(points: ScanPoints, params: ClusterParams) -> BoolArray:
+    """Step 2: True for points with at least ``min_neighbours`` neighbours among their
+    ``neighbour_beams`` nearest beams on either side (same scan) within the breakpoint
+    distance D_max of one beam's gap."""
+    a, b = _Links(points, params).window(params.neighbour_beams, params.neighbour_beams, 1)
+    n = len(points)
+    return np.bincount(a, minlength=n) + np.bincount(b, minlength=n) >= params.min_neighbours
+
+
+# -- 3. segment -----------------------------------------------------------------------------------
+def segment(points: ScanPoints, kept: BoolArray, params: ClusterParams) -> IntArray:
+    """Step 3: a cluster label per point (-1: removed, or in a dropped accumulation).
+
+    Kept points are linked to each of the next ``skip`` kept points of their scan when
+    within the breakpoint distance D_max (their beam gap, at most ``max_gap``, counted
+    at most ``gap_scale_limit`` beams): a hole of removed points or no-return beams does
+    not split a surface, and a few stray points kept among its returns are skipped (they
+    form their own small groups). Segments are the connected components of these links;
+    those of fewer than ``min_points`` points are dropped; then segments of different
+    scanners that touch are merged (:func:`_merge_across_scanners`). Labels are
+    consecutive from 0.
+    """
+    labels = np.full(len(points), -1, dtype=np.intp)
+    idx = np.flatnonzero(kept)
+    n = len(idx)
+    if n < params.min_points:
+        return labels
+    linked = _Links(points, params, idx)
+    a, b = linked.window(params.skip, params.max_gap, params.gap_scale_limit)
+    root = _components(n, a, b)
+    size = np.bincount(root, minlength=n)
+    members = np.flatnonzero(size[root] >= params.min_points)
+    if len(members) == 0:
+        return labels
+    label = _renumber(root[members], n)
+    labels[idx[members]] = _merge_across_scanners(
+        linked.x[members],
+        linked.y[members],
+        linked.scanner[members],
+        label,
+        params.merge_distance,
+    )
+    return labels
+
+
+def _renumber(root: IntArray, n: int) -> IntArray:
+    """Map node ids below ``n`` to consecutive labels from 0, in increasing order."""
+    used = np.zeros(n, dtype=np.intp)
+    used[root] = 1
+    return (np.cumsum(used) - 1)[root]
+
+
+def _components(n: int, a: IntArray, b: IntArray) -> IntArray:
+    """Connected components of the graph of ``n`` nodes and edges (a, b): the smallest
+    node of each node's component. Hook and compress (Shiloach & Vishkin 1982): every
+    root is hooked to the smallest root it shares an edge with, then every node is
+    pointed at its root by pointer jumping; repeated until no edge joins two roots."""
+    parent = np.arange(n)
+    while True:
+        ra, rb = parent[a], parent[b]
+        join = ra != rb
+        if not join.any():
+            return parent
+        np.minimum.at(parent, np.maximum(ra, rb)[join], np.minimum(ra, rb)[join])
+        while True:
+            up = parent[parent]
+            if (up == parent).all():
+                break
+            parent = up
+
+
+def _merge_across_scanners(
+    x: FloatArray, y: FloatArray, scanner: IntArray, label: IntArray, distance: float
+) -> IntArray:
+    """Union the clusters of different scanners whose points come within ``distance``.
+
+    Where two scanners see one surface, their returns interleave in bearing about the
+    robot's centre, or abut where their views meet: sorted by that bearing, a point of
+    one scanner has a point of the other among its next :data:`_ANGULAR_NEIGHBOURS`.
+    Those pairs closer than ``distance`` link their clusters. Returns the labels
+    renumbered from 0.
+    """
+    order = np.argsort(np.arctan2(y, x))
+    xs, ys, ss, ls = x[order], y[order], scanner[order], label[order]
+    a, b = [], []
+    for j in range(1, min(_ANGULAR_NEIGHBOURS, len(order) - 1) + 1):
+        dx, dy = xs[j:] - xs[:-j], ys[j:] - ys[:-j]
+        hit = ((dx * dx + dy * dy) <= distance * distance) & (ss[j:] != ss[:-j])
+        a.append(ls[:-j][hit])
+        b.append(ls[j:][hit])
+    a_all, b_all = np.concatenate(a), np.concatenate(b)
+    if len(a_all) == 0:
+        return label
+    n = int(label.max()) + 1
+    return _renumber(_components(n, a_all, b_all), n)[label]
+
+
+#: neighbours in bearing order searched for a point of another scanner
+_ANGULAR_NEIGHBOURS = 3
+
+
+def occluded(
+    points: ScanPoints, kept: BoolArray, order: IntArray, first: IntArray, params: ClusterParams
+) -> BoolArray:
+    """Per cluster, True when something in front cuts the view of it.
+
+    ``order`` indexes the clustered points, grouped by cluster (starting at ``first``),
+    in scan and beam order within a cluster. At each end of a cluster's run of beams in
+    one scan, the next kept return beyond that end (same scan, within ``max_gap`` beams)
+    is compared: nearer to the scanner by more than D_max, it hides part of the cluster,
+    whose centroid (or partial arc) is then biased.
+    """
+    n = len(order)
+    sc = points.scanner[order]
+    lo = np.zeros(n, dtype=bool)
+    lo[first] = True
+    lo[1:] |= sc[1:] != sc[:-1]
+    hi = np.zeros(n, dtype=bool)
+    hi[:-1] = lo[1:]
+    hi[-1] = True
+    kidx = np.flatnonzero(kept)
+    rank = np.cumsum(kept) - 1  # the index in kidx of each kept point
+    table = _ratio_table(points.increments, params.incidence_limit, params.gap_scale_limit)
+    hidden = np.zeros(n, dtype=bool)
+    for end, step in ((lo, -1), (hi, 1)):
+        at = np.flatnonzero(end)
+        p = order[at]
+        q = kidx[np.minimum(np.maximum(rank[p] + step, 0), len(kidx) - 1)]
+        gap = np.abs(points.beam[q] - points.beam[p])
+        ok = (points.scanner[q] == points.scanner[p]) & (gap > 0) & (gap <= params.max_gap)
+        r = points.ranges[q]
+        ahead = r + r * table[points.scanner[p], np.minimum(gap, params.gap_scale_limit)]
+        hidden[at] = ok & (ahead + 3.0 * params.range_sigma < points.ranges[p])
+    return np.logical_or.reduceat(hidden, first)
+
+
+# -- 4. classify ----------------------------------------------------------------------------------
+@dataclass(frozen=True, slots=True, eq=False)
+class ClusterFits:
+    """Per cluster: ``kind`` code, ``centroid`` (C, 2), ``size`` (enclosing radius about the
+    centroid), ``line`` (C, 4) end points, ``circle`` (C, 3) centre and radius (NaN rows
+    unless that kind), ``rms`` residual of the chosen model over its inliers (NaN for a
+    blob)."""
+
+    kind: NDArray[np.int8]
+    centroid: FloatArray
+    size: FloatArray
+    line: FloatArray
+    circle: FloatArray
+    rms: FloatArray
+
+
+#: rows of a symmetric 3x3 system stacked as (a11, a12, a13, a22, a23, a33, b1, b2, b3):
+#: the cofactors c_ij = a[P] a[Q] - a[R] a[S] in the order (c11, c12, c13, c22, c23, c33),
+#: and the adjugate as indices into them
+_COF = np.array([[3, 2, 1, 0, 1, 0], [5, 4, 4, 5, 2, 3], [4, 1, 2, 2, 0, 1], [4, 5, 3, 2, 4, 1]])
+_ADJ = np.array([[0, 1, 2], [1, 3, 4], [2, 4, 5]])
+
+
+def _solve_sym3(s: FloatArray) -> FloatArray:
+    """Batched symmetric 3x3 solve by the adjugate (Cramer's rule): ``s`` (9, C) as
+    (a11, a12, a13, a22, a23, a33, b1, b2, b3) per column; returns x (3, C), inf or NaN
+    where the system is singular."""
+    cof = s[_COF[0]] * s[_COF[1]] - s[_COF[2]] * s[_COF[3]]
+    det = (s[:3] * cof[:3]).sum(axis=0)
+    return (cof[_ADJ] * s[6:9]).sum(axis=1) / det
+
+
+class _Batch:
+    """Cluster-centred coordinates of every point and the group structure; the strata of
+    the RANSAC sampler; an evenly strided subsample of ``n_sub`` points per cluster
+    (repeating points of smaller clusters) that scores the hypotheses."""
+
+    #: sampler strata as fractions part/parts of a cluster: halves for the two points of
+    #: a line, thirds for the three points of a circle
+    PARTS = np.array([0, 1, 0, 1, 2])[:, None], np.array([2, 2, 3, 3, 3])[:, None]
+
+    def __init__(self, xy: FloatArray, start: IntArray, n_sub: int) -> None:
+        first = start[:-1]
+        self.start = first
+        self.count = count = start[1:] - first
+        self.of = np.repeat(np.arange(len(first)), count)
+        self.centroid = np.add.reduceat(xy, first, axis=0) / count[:, None]
+        u = (xy - self.centroid[self.of]).T.copy()
+        self.x, self.y = u[0], u[1]
+        self.buf = np.empty((9, len(xy)))
+        sub = first[:, None] + (np.arange(n_sub) * count[:, None]) // n_sub
+        self.sub_x, self.sub_y = self.x[sub], self.y[sub]
+        part, parts = self.PARTS
+        lo = count * part // parts
+        self.width = count * (part + 1) // parts - lo
+        self.base = first + lo
+
+    def draw(self, u: FloatArray) -> IntArray:
+        """Point indices (5, H, C) drawn in the strata from uniforms ``u`` (5, H, C):
+        rows 0-1 for lines, 2-4 for circles."""
+        return self.base[:, None, :] + (u * self.width[:, None, :]).astype(np.intp)
+
+    def sums(self, *rows: FloatArray) -> FloatArray:
+        """Per-cluster sums of each row: (len(rows), C)."""
+        buf = self.buf[: len(rows)]
+        for out, row in zip(buf, rows, strict=True):
+            out[:] = row
+        return np.add.reduceat(buf, self.start, axis=1)
+
+    @staticmethod
+    def best(residual: FloatArray, valid: BoolArray, eps: float) -> tuple[IntArray, BoolArray]:
+        """Per cluster, the hypothesis of least MSAC cost on the subsample (``residual``
+        (H, C, n_sub), overwritten), and whether it is valid."""
+        np.square(residual, out=residual)
+        np.minimum(residual, eps * eps, out=residual)
+        cost = np.where(valid, residual.sum(axis=2), np.inf)
+        return cost.argmin(axis=0), np.isfinite(cost.min(axis=0))
+
+    def score(self, residual: FloatArray, eps: float) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """MSAC cost, inlier fraction and inlier rms of per-point residuals (C each)."""
+        inlier = residual < eps
+        sq = residual * residual
+        cost, n_in, sq_in = self.sums(np.minimum(sq, eps * eps), inlier, np.where(inlier, sq, 0))
+        return cost, n_in / self.count, np.sqrt(sq_in / n_in)
+
+
+def _fit_lines(
+    b: _Batch, params: ClusterParams, idx: IntArray
+) -> tuple[FloatArray, FloatArray, FloatArray, BoolArray]:
+    """RANSAC + total least squares lines: end points (C, 4) in the centred frame, MSAC
+    cost and inlier rms (C each), and the validity mask."""
+    eps = params.inlier_band
+    x, y, of = b.x, b.y, b.of
+    x1, y1 = x[idx[0]], y[idx[0]]
+    dx, dy = x[idx[1]] - x1, y[idx[1]] - y1
+    length = np.sqrt(dx * dx + dy * dy)  # 0 for a degenerate pair: NaN normal, invalid
+    nx, ny = -dy / length, dx / length
+    off = nx * x1 + ny * y1
+    res = np.abs(nx[..., None] * b.sub_x + ny[..., None] * b.sub_y - off[..., None])
+    best, ok = b.best(res, length > 0.0, eps)
+    cols = np.arange(len(best))
+    nx, ny, off = nx[best, cols], ny[best, cols], off[best, cols]
+    for _ in range(params.refinements):  # principal axis of the inliers' scatter
+        w = (np.abs(nx[of] * x + ny[of] * y - off[of]) < eps).astype(float)
+        wx, wy = x * w, y * w
+        sw, sx, sy, sxx, sxy, syy = b.sums(w, wx, wy, wx * x, wx * y, wy * y)
+        mx, my = sx / sw, sy / sw
+        theta = 0.5 * np.arctan2(
+            2.0 * (sxy / sw - mx * my), sxx / sw - mx * mx - syy / sw + my * my
+        )
+        nx, ny = -np.sin(theta), np.cos(theta)
+        off = nx * mx + ny * my
+    res = np.abs(nx[of] * x + ny[of] * y - off[of])
+    cost, frac, rms = b.score(res, eps)
+    t = ny[of] * x - nx[of] * y  # along the direction (ny, -nx)
+    inlier = res < eps
+    t0 = np.minimum.reduceat(np.where(inlier, t, np.inf), b.start)
+    t1 = np.maximum.reduceat(np.where(inlier, t, -np.inf), b.start)
+    ends = np.empty((len(best), 4))
+    ends[:, 0], ends[:, 1] = off * nx + t0 * ny, off * ny - t0 * nx
+    ends[:, 2], ends[:, 3] = off * nx + t1 * ny, off * ny - t1 * nx
+    ok &= (frac >= params.min_inlier_fraction) & np.isfinite(ends).all(axis=1)
+    return ends, cost, rms, ok
+
+
+def _fit_circles(
+    b: _Batch, params: ClusterParams, idx: IntArray, outward: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray, BoolArray]:
+    """RANSAC + Kasa + Gauss-Newton circles: (C, 3) centre (centred frame) and radius,
+    MSAC cost and inlier rms (C each), and the validity mask (radius bounds, centre on the
+    far side: along ``outward`` (C, 2), the sensor-to-centroid directions)."""
+    eps = params.inlier_band
+    x, y, of = b.x, b.y, b.of
+    ax, ay = x[idx[2]], y[idx[2]]
+    bx, by = x[idx[3]] - ax, y[idx[3]] - ay
+    cx, cy = x[idx[4]] - ax, y[idx[4]] - ay
+    den = 2.0 * (bx * cy - by * cx)
+    b2, c2 = bx * bx + by * by, cx * cx + cy * cy
+    ox, oy = (cy * b2 - by * c2) / den, (bx * c2 - cx * b2) / den
+    px, py, radius = ax + ox, ay + oy, np.sqrt(ox * ox + oy * oy)
+    gx, gy = b.sub_x - px[..., None], b.sub_y - py[..., None]
+    res = np.abs(np.sqrt(gx * gx + gy * gy) - radius[..., None])
+    best, ok = b.best(res, _circle_ok(px, py, radius, outward, params), eps)
+    cols = np.arange(len(best))
+    px, py, radius = px[best, cols], py[best, cols], radius[best, cols]
+    for rnd in range(params.refinements):
+        gx, gy = x - px[of], y - py[of]
+        w = (np.abs(np.sqrt(gx * gx + gy * gy) - radius[of]) < eps).astype(float)
+        if rnd == 0:  # Kasa: x^2 + y^2 + D x + E y + F = 0 in least squares
+            z = x * x + y * y
+            wx, wy, wz = x * w, y * w, z * w
+            d, e, f = _solve_sym3(b.sums(wx * x, wx * y, wx, wy * y, wy, w, -wx * z, -wy * z, -wz))
+            px, py = -0.5 * d, -0.5 * e
+            radius = np.sqrt(px * px + py * py - f)
+        for _ in range(params.geometric_steps):  # Gauss-Newton on |p - c| - r
+            gx, gy = x - px[of], y - py[of]
+            dist = np.sqrt(gx * gx + gy * gy)
+            gx, gy = gx / dist, gy / dist
+            err = dist - radius[of]
+            wgx, wgy = gx * w, gy * w
+            da, db, dr = _solve_sym3(
+                b.sums(wgx * gx, wgx * gy, wgx, wgy * gy, wgy, w, wgx * err, wgy * err, err * w)
+            )
+            px, py, radius = px + da, py + db, radius + dr
+    gx, gy = x - px[of], y - py[of]
+    res = np.abs(np.sqrt(gx * gx + gy * gy) - radius[of])
+    res[np.isnan(res)] = np.inf
+    cost, frac, rms = b.score(res, eps)
+    ok &= (frac >= params.min_inlier_fraction) & _circle_ok(px, py, radius, outward, params)
+    circle = np.empty((len(best), 3))
+    circle[:, 0], circle[:, 1], circle[:, 2] = px, py, radius
+    return circle, cost, rms, ok
+
+
+def _circle_ok(
+    px: FloatArray, py: FloatArray, radius: FloatArray, outward: FloatArray, params: ClusterParams
+) -> BoolArray:
+    """Radius within bounds (so finite), centre beyond the centroid seen from the sensor."""
+    ok = (radius >= params.min_radius) & (radius <= params.max_radius)
+    ok &= px * outward[:, 0] + py * outward[:, 1] > 0.0
+    return ok
+
+
+def fit_clusters(
+    xy: FloatArray,
+    start: IntArray,
+    sensors: FloatArray,
+    params: ClusterParams,
+    rng: np.random.Generator,
+) -> ClusterFits:
+    """Step 4: classify every cluster as line, circle or blob and fit it (batched).
+
+    ``xy`` (M, 2): the points in R, grouped by cluster, in beam order within a cluster;
+    cluster i is ``xy[start[i]:start[i + 1]]`` (each has >= 3 points); ``sensors``
+    (C, 2): the position in R of the scanner that saw each cluster. See the module
+    docstring for the RANSAC, the refinements and the decision rule.
+    """
+    b = _Batch(xy, start, params.ransac_points)
+    idx = b.draw(rng.random((5, params.ransac_hypotheses, len(b.start))))
+    with np.errstate(invalid="ignore", divide="ignore"):  # degenerate fits turn invalid
+        ends, cost_l, rms_l, line_ok = _fit_lines(b, params, idx)
+        circle, cost_c, rms_c, circle_ok = _fit_circles(b, params, idx, b.centroid - sensors)
+        evidence = (cost_l - cost_c) / (params.range_sigma * params.range_sigma)
+        is_circle = circle_ok & (~line_ok | (evidence >= params.model_chi2))
+    kind = np.full(len(b.start), BLOB, dtype=np.int8)
+    kind[line_ok] = LINE
+    kind[is_circle] = CIRCLE
+    is_line = (kind == LINE)[:, None]
+    ends[:, :2] += b.centroid
+    ends[:, 2:] += b.centroid
+    circle[:, :2] += b.centroid
+    return ClusterFits(
+        kind=kind,
+        centroid=b.centroid,
+        size=np.sqrt(np.maximum.reduceat(b.x * b.x + b.y * b.y, b.start)),
+        line=np.where(is_line, ends, np.nan),
+        circle=np.where(is_circle[:, None], circle, np.nan),
+        rms=np.where(is_line[:, 0], rms_l, np.where(is_circle, rms_c, np.nan)),
+    )
+
+
+# -- the detector ---------------------------------------------------------------------------------
+@dataclass(frozen=True, slots=True, eq=False)
+class Cluster:
+    """One detected obstacle in the robot frame R (see :class:`Clusters`)."""
+
+    kind: str
+    points: FloatArray
+    centroid: tuple[float, float]
+    position: tuple[float, float]
+    size: float
+    shape: tuple[float, ...]
+    rms: float
+    clearance: float
+
+    @property
+    def n_points(self) -> int:
+        return len(self.points)
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Clusters:
+    """The obstacles detected in one set of scans, as arrays over C clusters, in R.
+
+    ``points`` (M, 2): the clustered points, cluster after cluster: cluster i is
+    ``points[start[i]:start[i + 1]]`` (``start`` has C + 1 entries). ``kind``: codes
+    :data:`LINE`, :data:`CIRCLE`, :data:`BLOB`. ``centroid`` (C, 2); ``position`` (C, 2)
+    the point to track: the circle centre, else the centroid; ``size`` the radius of a
+    circle enclosing the obstacle: the fitted radius of a circle, else the largest distance
+    of a point from the centroid; ``line`` (C, 4) the end points (x0, y0, x1, y1) of a
+    line and ``circle`` (C, 3) the centre and radius of a circle (NaN rows otherwise);
+    ``rms`` the residual of the fitted model over its inliers (NaN for a blob);
+    ``clearance`` the distance from the robot's footprint to the nearest point;
+    ``occluded`` True when something in front cuts the view of the cluster (its
+    centroid, or its partial arc, is then biased: see :func:`occluded`).
+    ``returns`` and ``isolated`` count the returns and the removed isolated points.
+    """
+
+    stamp: float
+    points: FloatArray
+    start: IntArray
+    kind: NDArray[np.int8]
+    centroid: FloatArray
+    position: FloatArray
+    size: FloatArray
+    line: FloatArray
+    circle: FloatArray
+    rms: FloatArray
+    clearance: FloatArray
+    occluded: BoolArray
+    returns: int = 0
+    isolated: int = 0
+
+    @staticmethod
+    def empty(stamp: float, returns: int = 0, isolated: int = 0) -> Clusters:
+        z2, z = np.zeros((0, 2)), np.zeros(0)
+        return Clusters(
+            stamp,
+            z2,
+            np.zeros(1, dtype=np.intp),
+            np.zeros(0, dtype=np.int8),
+            z2,
+            z2,
+            z,
+            np.zeros((0, 4)),
+            np.zeros((0, 3)),
+            z,
+            z,
+            np.zeros(0, dtype=bool),
+            returns,
+            isolated,
+        )
+
+    def __len__(self) -> int:
+        return len(self.kind)
+
+    def __getitem__(self, i: int) -> Cluster:
+        k = int(self.kind[i])
+        shape = self.line[i] if k == LINE else self.circle[i] if k == CIRCLE else ()
+        return Cluster(
+            kind=KIND_NAMES[k],
+            points=self.points[self.start[i] : self.start[i + 1]],
+            centroid=(float(self.centroid[i, 0]), float(self.centroid[i, 1])),
+            position=(float(self.position[i, 0]), float(self.position[i, 1])),
+            size=float(self.size[i]),
+            shape=tuple(float(v) for v in shape),
+            rms=float(self.rms[i]),
+            clearance=float(self.clearance[i]),
+        )
+
+    def __iter__(self) -> Iterator[Cluster]:
+        return (self[i] for i in range(len(self)))
+
+
+class ScanClusterer:
+    """Thesis Algorithm 2.1 (seed lines 780-830) for a robot of footprint
+    ``length`` x ``width`` (m, centred on the axle): scans in, :class:`Clusters` out.
+
+    Deterministic: the RANSAC sampler is seeded with ``params.seed`` once, at
+    construction (pass ``rng`` to share another generator).
+    """
+
+    def __init__(
+        self,
+        length: float,
+        width: float,
+        params: ClusterParams | None = None,
+        rng: np.random.Generator | None = None,
+    ) -> None:
+        self.length = length
+        self.width = width
+        self.params = params or ClusterParams()
+        self.rng = rng or np.random.default_rng(self.params.seed)
+
+    def detect(self, scans: Sequence[tuple[LaserScan, Pose2]]) -> Clusters:
+        """Detect the obstacles in ``scans``: ``(scan, mount)`` pairs, ``mount`` the
+        scanner's pose in R. Pass every new scan of every scanner, together when they
+        were taken together; the result is stamped with the latest scan's stamp."""
+        p = self.params
+        pts = merge_scans(scans)
+        kept = neighbour_mask(pts, p)
+        labels = segment(pts, kept, p)
+        members = np.flatnonzero(labels >= 0)
+        returns, isolated = len(pts), len(pts) - int(np.count_nonzero(kept))
+        if len(members) == 0:
+            return Clusters.empty(pts.stamp, returns, isolated)
+        order = members[np.argsort(labels[members], kind="stable")]
+        count = np.bincount(labels[order])
+        start = np.concatenate(([0], np.cumsum(count)))
+        xy = np.column_stack((pts.x[order], pts.y[order]))
+        first = start[:-1]
+        fits = fit_clusters(xy, start, pts.sensors[pts.scanner[order[first]]], p, self.rng)
+        is_circle = (fits.kind == CIRCLE)[:, None]
+        return Clusters(
+            stamp=pts.stamp,
+            points=xy,
+            start=start,
+            kind=fits.kind,
+            centroid=fits.centroid,
+            position=np.where(is_circle, fits.circle[:, :2], fits.centroid),
+            size=np.where(is_circle[:, 0], fits.circle[:, 2], fits.size),
+            line=fits.line,
+            circle=fits.circle,
+            rms=fits.rms,
+            clearance=np.minimum.reduceat(footprint_distances(xy, self.length, self.width), first),
+            occluded=occluded(pts, kept, order, first, p),
+            returns=returns,
+            isolated=isolated,
+        )

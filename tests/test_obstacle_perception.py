@@ -1,0 +1,497 @@
+"""Laser obstacle perception: thesis Algorithm 2.1 (seed 000, lines 780-830) and tracking.
+
+Synthetic scans of two Hokuyo UTM-30LX (270 deg, 0.25 deg, 1081 beams, 30 m) mounted as
+on the A320 platform (front x = +0.65 m, rear x = -0.65 m facing back), ray-cast with
+:func:`sim2d.raycast.cast_scan` against analytic shapes, plus Gaussian range noise.
+"""
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from behaviours.laws.laser_clusters import (
+    BLOB,
+    CIRCLE,
+    LINE,
+    ClusterParams,
+    Clusters,
+    ScanClusterer,
+    breakpoint_distance,
+    merge_scans,
+    neighbour_mask,
+)
+from behaviours.laws.tracking import (
+    DangerParams,
+    ObstacleTracker,
+    danger_level,
+    path_distance,
+)
+from executive.core.frames import Pose2
+from executive.core.records import Danger, LaserScan
+from sim2d.raycast import Scene, cast_scan
+
+AMIN, INC, BEAMS, RMAX = -3 * math.pi / 4, math.pi / 720, 1081, 30.0
+MOUNTS = (Pose2(0.65, 0.0, 0.0), Pose2(-0.65, 0.0, math.pi))
+LENGTH, WIDTH = 1.4, 1.0
+
+
+def scan_pair(scene, robot=None, sigma=0.01, rng=None, stamp=0.0, outliers=0.0):
+    """Both scans of the robot at ``robot`` (world frame of ``scene``), with range noise
+    ``sigma`` and a share ``outliers`` of beams replaced by uniform ranges in [0, 30 m]."""
+    rng = rng if rng is not None else np.random.default_rng(0)
+    robot = robot or Pose2(0.0, 0.0, 0.0)
+    out = []
+    for mount in MOUNTS:
+        sensor = robot @ mount
+        ranges = cast_scan(scene, (sensor.x, sensor.y), sensor.theta, AMIN, INC, BEAMS, RMAX)
+        hit = ranges < RMAX
+        ranges[hit] += rng.normal(0.0, sigma, hit.sum())
+        bad = rng.random(BEAMS) < outliers
+        ranges[bad] = rng.uniform(0.0, RMAX, bad.sum())
+        out.append((LaserScan(stamp, AMIN, INC, RMAX, np.minimum(ranges, RMAX)), mount))
+    return out
+
+
+def detect(scene, **kwargs):
+    return ScanClusterer(LENGTH, WIDTH).detect(scan_pair(scene, **kwargs))
+
+
+def angle_between(a, b):
+    d = abs(a - b) % math.pi
+    return min(d, math.pi - d)
+
+
+# -- detection ---------------------------------------------------------------------------
+def test_breakpoint_distance_is_borges_aldon():
+    lam, sigma = math.radians(10), 0.02
+    for r, dphi in ((1.0, INC), (10.0, INC), (10.0, 4 * INC)):
+        expected = r * math.sin(dphi) / math.sin(lam - dphi) + 3 * sigma
+        assert breakpoint_distance(r, dphi, lam, sigma) == pytest.approx(expected)
+    # at 10 m and one beam: about 0.32 m, and it grows with range and gap
+    assert 0.3 < breakpoint_distance(10.0, INC, lam, sigma) < 0.35
+
+
+def test_merge_keeps_scanner_beam_and_robot_frame():
+    wall_ahead = Scene(segments=[(5.0, -20.0, 5.0, 20.0)])
+    wall_behind = Scene(segments=[(-5.0, -20.0, -5.0, 20.0)])
+    pts = merge_scans(scan_pair(Scene.concat([wall_ahead, wall_behind]), sigma=0.0))
+    front, rear = pts.scanner == 0, pts.scanner == 1
+    assert np.allclose(np.abs(pts.x), 5.0)  # every return on one of the walls
+    assert np.all(np.diff(pts.beam[front]) > 0) and np.all(np.diff(pts.beam[rear]) > 0)
+    # the middle beam of each scanner looks along its mount's heading
+    middle = BEAMS // 2
+    for scanner, x in ((front, 5.0), (rear, -5.0)):
+        k = np.flatnonzero(scanner & (pts.beam == middle))
+        assert pts.x[k] == pytest.approx([x]) and pts.y[k] == pytest.approx([0.0], abs=1e-9)
+    angles = AMIN + INC * pts.beam[front]
+    assert np.allclose(pts.ranges[front], np.hypot(pts.x[front] - 0.65, pts.y[front]))
+    assert np.allclose(np.arctan2(pts.y[front], pts.x[front] - 0.65), angles)
+
+
+def test_isolated_returns_are_removed_and_make_no_cluster():
+    scans = scan_pair(Scene(), sigma=0.0)  # nothing in view
+    spikes = scans[0][0].ranges.copy()
+    spikes[[100, 300, 301, 700]] = (4.0, 7.0, 12.0, 2.0)  # lone returns, a pair far apart
+    scans[0] = (LaserScan(0.0, AMIN, INC, RMAX, spikes), MOUNTS[0])
+    pts = merge_scans(scans)
+    assert len(pts) == 4
+    assert not neighbour_mask(pts, ClusterParams()).any()
+    assert len(ScanClusterer(LENGTH, WIDTH).detect(scans)) == 0
+
+
+def test_line_classified_with_end_points_and_angle():
+    a, b = np.array([6.0, -2.0]), np.array([6.8, 2.5])  # a wall, seen at an angle
+    clusters = detect(Scene(segments=[(*a, *b)]), sigma=0.02)
+    assert len(clusters) == 1
+    wall = clusters[0]
+    assert wall.kind == "line"
+    x0, y0, x1, y1 = wall.shape
+    ends = sorted([(x0, y0), (x1, y1)], key=lambda p: p[1])
+    assert np.hypot(*(np.array(ends[0]) - a)) < 0.05
+    assert np.hypot(*(np.array(ends[1]) - b)) < 0.05
+    fitted = math.atan2(y1 - y0, x1 - x0)
+    assert math.degrees(angle_between(fitted, math.atan2(*(b - a)[::-1]))) < 1.0
+    assert wall.rms < 0.04
+
+
+@pytest.mark.parametrize(
+    ("centre", "radius"),
+    [((4.0, 1.0), 0.3), ((-5.0, -3.0), 0.6), ((2.5, -6.0), 0.3), ((-1.0, 8.0), 1.2)],
+    ids=["pedestrian-ahead", "gear-leg-behind", "pedestrian-side", "big-circle"],
+)
+def test_circle_classified_with_centre_and_radius(centre, radius):
+    clusters = detect(Scene(circles=[(*centre, radius)]), sigma=0.02)
+    assert len(clusters) == 1
+    obstacle = clusters[0]
+    assert obstacle.kind == "circle"
+    cx, cy, r = obstacle.shape
+    assert math.hypot(cx - centre[0], cy - centre[1]) < 0.04
+    assert abs(r - radius) < 0.04
+    assert obstacle.position == pytest.approx((cx, cy))
+    assert obstacle.size == pytest.approx(r)
+
+
+def test_box_corner_is_a_blob_and_box_face_a_line():
+    corner = detect(Scene.from_box(5.0, 0.0, math.radians(45), 2.0, 1.2), sigma=0.01)
+    face = detect(Scene.from_box(6.0, 0.0, 0.0, 0.8, 3.0), sigma=0.01)
+    assert [c.kind for c in corner] == ["blob"]
+    assert [c.kind for c in face] == ["line"]
+
+
+def test_short_arc_of_a_huge_circle_is_a_line():
+    # a drum of 6 m radius seen from 4 m: the radius bound rules out a circle
+    clusters = detect(Scene(circles=[(10.0, 0.0, 6.0)]), sigma=0.01)
+    assert len(clusters) == 1 and clusters[0].kind in ("line", "blob")
+
+
+def test_object_beside_the_robot_seen_by_both_scanners_is_one_cluster():
+    clusters = detect(Scene(segments=[(-3.0, 1.5, 3.0, 1.5)]), sigma=0.01)
+    assert [c.kind for c in clusters] == ["line"]
+    x0, _, x1, _ = clusters[0].shape
+    assert min(x0, x1) < -2.5 and max(x0, x1) > 2.5  # both halves, one line
+
+
+def test_clearance_is_measured_from_the_footprint():
+    clusters = detect(Scene(circles=[(3.0, 0.0, 0.3)]), sigma=0.0)
+    assert clusters[0].clearance == pytest.approx(3.0 - 0.3 - LENGTH / 2, abs=0.01)
+
+
+def test_a_partly_hidden_cluster_is_occluded():
+    scene = Scene(circles=[(3.0, 0.0, 0.3), (6.0, 0.8, 0.3)])  # the far one half hidden
+    clusters = detect(scene, sigma=0.01)
+    by_range = sorted(range(len(clusters)), key=lambda i: clusters.centroid[i, 0])
+    assert [bool(clusters.occluded[i]) for i in by_range] == [False, True]
+
+
+OUTLIER_SCENE = Scene.concat(
+    [
+        Scene(circles=[(4.0, 1.0, 0.3), (6.0, -3.0, 0.6), (-3.0, -4.0, 0.25)]),
+        Scene.from_box(-5.0, 2.0, 0.3, 2.0, 1.0),
+        Scene(segments=[(8.0, -6.0, 8.0, 6.0)]),
+    ]
+)
+
+
+KIND = {LINE: "line", CIRCLE: "circle", BLOB: "blob"}
+
+
+def _summary(clusters: Clusters):
+    """(kind, centroid) per cluster, sorted by bearing."""
+    order = np.argsort(np.arctan2(clusters.centroid[:, 1], clusters.centroid[:, 0]))
+    return [(KIND[clusters.kind[i]], clusters.centroid[i], clusters[i]) for i in order]
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_thirty_percent_outliers_yield_the_same_clusters(seed):
+    clean = _summary(detect(OUTLIER_SCENE, sigma=0.01))
+    noisy = _summary(
+        detect(OUTLIER_SCENE, sigma=0.01, rng=np.random.default_rng(seed), outliers=0.3)
+    )
+    assert [k for k, _, _ in noisy] == [k for k, _, _ in clean]
+    assert len(clean) == 7  # 3 circles, the wall in 3 pieces (occluded), the box corner
+    for (kind, centroid, a), (_, other, b) in zip(clean, noisy, strict=True):
+        if kind == "circle":
+            assert np.hypot(a.shape[0] - b.shape[0], a.shape[1] - b.shape[1]) < 0.04
+            assert abs(a.shape[2] - b.shape[2]) < 0.04
+        elif kind == "line":  # on the wall x = 8 (a piece may lose an end point or two)
+            x0, y0, x1, y1 = b.shape
+            assert abs(x0 - 8.0) < 0.03 and abs(x1 - 8.0) < 0.03
+            assert math.degrees(angle_between(math.atan2(y1 - y0, x1 - x0), math.pi / 2)) < 2.0
+            assert abs(b.size - a.size) < 0.2
+        else:
+            assert np.hypot(*(centroid - other)) < 0.15
+
+
+def test_detection_is_deterministic():
+    scans = scan_pair(OUTLIER_SCENE, outliers=0.2)
+    a = ScanClusterer(LENGTH, WIDTH).detect(scans)
+    b = ScanClusterer(LENGTH, WIDTH).detect(scans)
+    assert np.array_equal(a.kind, b.kind)
+    assert np.array_equal(np.nan_to_num(a.circle), np.nan_to_num(b.circle))
+    assert np.array_equal(np.nan_to_num(a.line), np.nan_to_num(b.line))
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    radius=st.floats(0.2, 1.5),
+    gap=st.floats(1.5, 8.0),
+    bearing=st.floats(-math.pi, math.pi),
+    seed=st.integers(0, 2**32 - 1),
+)
+def test_random_circles_are_circles(radius, gap, bearing, seed):
+    d = radius + gap  # the surface at least 1.5 m from the robot's centre
+    centre = (d * math.cos(bearing), d * math.sin(bearing))
+    clusters = detect(
+        Scene(circles=[(*centre, radius)]), sigma=0.01, rng=np.random.default_rng(seed)
+    )
+    assert [c.kind for c in clusters] == ["circle"]
+    cx, cy, r = clusters[0].shape
+    assert math.hypot(cx - centre[0], cy - centre[1]) < 0.04
+    assert abs(r - radius) < 0.04
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    no_return=st.sampled_from([RMAX, RMAX + 5.0, math.inf, math.nan]),
+)
+def test_no_return_beams_are_never_points(seed, no_return):
+    """Clusters do not depend on what a no-return beam reads (range_max, beyond, inf,
+    NaN), nor on dropping the beams at either end of the scan that saw nothing."""
+    rng = np.random.default_rng(seed)
+    circles = [(*rng.uniform(-12, 12, 2), rng.uniform(0.2, 1.0)) for _ in range(5)]
+    circles = [c for c in circles if math.hypot(c[0], c[1]) > c[2] + 1.5]
+    scene = Scene(circles=circles) if circles else Scene()
+    scans = scan_pair(scene, rng=rng, outliers=0.05)
+    reference = ScanClusterer(LENGTH, WIDTH).detect(scans)
+    changed = []
+    for scan, mount in scans:
+        ranges = np.where(scan.ranges >= RMAX, no_return, scan.ranges)
+        hits = np.flatnonzero(scan.ranges < RMAX)
+        lo = hits[0] if len(hits) else 0
+        hi = hits[-1] + 1 if len(hits) else 0
+        angle_min = AMIN + lo * INC  # the first and last beams with a return
+        changed.append((LaserScan(0.0, angle_min, INC, RMAX, ranges[lo:hi]), mount))
+    again = ScanClusterer(LENGTH, WIDTH).detect(changed)
+    assert np.array_equal(reference.kind, again.kind)
+    assert np.allclose(reference.centroid, again.centroid)
+    assert np.allclose(reference.points, again.points)
+
+
+# -- tracking ----------------------------------------------------------------------------
+def walkers(t, offset=0.8):
+    """Two walkers crossing in an X at (6, 0), 1.2 m/s, B 0.8 s behind A."""
+    s = 1.2 / math.sqrt(2.0)
+    va, vb = np.array([s, s]), np.array([s, -s])
+    pa = np.array([3.5, -2.5]) + va * t
+    pb = np.array([3.5, 2.5]) - vb * offset + vb * t
+    return (pa, va), (pb, vb)
+
+
+@pytest.mark.parametrize(
+    ("v", "omega"), [(0.0, 0.0), (0.8, 0.0), (0.5, 0.2)], ids=["still", "ahead", "turning"]
+)
+def test_two_walkers_crossing_keep_identities_and_velocities(v, omega):
+    rng = np.random.default_rng(7)
+    clusterer = ScanClusterer(LENGTH, WIDTH)
+    tracker = ObstacleTracker(DangerParams(LENGTH, WIDTH))
+    x = y = heading = 0.0
+    ids: dict[str, int] = {}
+    clear_errors = []
+    for k in range(200):  # 5 s at 40 Hz
+        t = k / 40.0
+        robot = Pose2(x, y, heading)
+        (pa, va), (pb, vb) = walkers(t)
+        scene = Scene(circles=[(*pa, 0.3), (*pb, 0.3)])
+        tracks = tracker.update(
+            clusterer.detect(scan_pair(scene, robot, rng=rng, stamp=t)), robot, (v, omega)
+        )
+        to_r = robot.inverse()
+        bearings = [math.atan2(*(to_r.apply(p) - (0.65, 0.0))[::-1]) for p in (pa, pb)]
+        apart = abs(bearings[0] - bearings[1]) > 0.6 / np.hypot(*to_r.apply(pa)) + 0.05
+        for name, p, vel in (("A", pa, va), ("B", pb, vb)):
+            if t < 1.0:
+                continue
+            near = [o for o in tracks if np.hypot(*(np.array(o.position) - to_r.apply(p))) < 0.3]
+            assert len(near) == 1, f"{name} at t={t}: {near}"
+            assert ids.setdefault(name, near[0].id) == near[0].id, f"{name} swapped at t={t}"
+            error = np.hypot(*(np.array(near[0].velocity) - vel @ robot.rotation()))
+            assert error < 0.25, f"{name} at t={t}: {error}"
+            if apart:  # neither hides the other
+                clear_errors.append(error)
+        x += v * math.cos(heading) / 40.0
+        y += v * math.sin(heading) / 40.0
+        heading += omega / 40.0
+    assert ids["A"] != ids["B"]
+    assert max(clear_errors) < 0.1
+    assert len(clear_errors) > 200
+
+
+def test_identities_survive_a_blackout_while_walkers_pass():
+    """Two walkers pass each other on lanes 0.8 m apart while the lasers see nothing for
+    0.8 s: each walks 0.96 m, so each re-appears nearer the other's last position; only
+    the constant-velocity prediction gives the tracks back to the right walkers."""
+    rng = np.random.default_rng(11)
+    clusterer = ScanClusterer(LENGTH, WIDTH)
+    tracker = ObstacleTracker(DangerParams(LENGTH, WIDTH))
+    robot = Pose2(0.0, 0.0, 0.0)
+    ids = {}
+    for k in range(140):
+        t = k / 40.0
+        pa, pb = np.array([5.0, -1.8 + 1.2 * t]), np.array([5.8, 1.8 - 1.2 * t])
+        scans = scan_pair(Scene(circles=[(*pa, 0.3), (*pb, 0.3)]), robot, rng=rng, stamp=t)
+        blackout = 1.1 <= t < 1.9
+        clusters = Clusters.empty(t) if blackout else clusterer.detect(scans)
+        tracks = tracker.update(clusters, robot)
+        if t >= 1.0 and not blackout:
+            for name, p in (("A", pa), ("B", pb)):
+                (near,) = [o for o in tracks if np.hypot(*(np.array(o.position) - p)) < 0.3]
+                assert ids.setdefault(name, near.id) == near.id, f"{name} swapped at t={t}"
+    assert ids["A"] != ids["B"]
+
+
+def test_static_obstacle_from_a_turning_robot_has_no_velocity():
+    rng = np.random.default_rng(3)
+    clusterer = ScanClusterer(LENGTH, WIDTH)
+    tracker = ObstacleTracker(DangerParams(LENGTH, WIDTH))
+    scene = Scene(circles=[(5.0, 2.0, 0.4)])
+    x = y = heading = 0.0
+    for k in range(120):
+        robot = Pose2(x, y, heading)
+        tracks = tracker.update(
+            clusterer.detect(scan_pair(scene, robot, rng=rng, stamp=k / 40.0)), robot, (1.0, 0.3)
+        )
+        x += math.cos(heading) / 40.0
+        y += math.sin(heading) / 40.0
+        heading += 0.3 / 40.0
+    (pole,) = tracks
+    assert pole.kind == "circle"
+    assert np.hypot(*pole.velocity) < 0.1
+    assert np.allclose(pole.position, robot.inverse().apply((5.0, 2.0)), atol=0.05)
+    assert pole.shape[:2] == pytest.approx(pole.position)
+    assert pole.age == pytest.approx(119 / 40.0)
+    cov = pole.covariance
+    assert cov.shape == (4, 4) and np.allclose(cov, cov.T)
+    assert np.all(np.linalg.eigvalsh(cov) > 0.0)
+
+
+def test_tracks_are_confirmed_then_deleted_after_coasting():
+    clusterer = ScanClusterer(LENGTH, WIDTH)
+    tracker = ObstacleTracker(DangerParams(LENGTH, WIDTH))
+    robot = Pose2(0.0, 0.0, 0.0)
+    seen = Scene(circles=[(4.0, 0.0, 0.3)])
+    counts = []
+    for k in range(100):
+        scene = seen if k < 20 else Scene()
+        scans = scan_pair(scene, robot, rng=np.random.default_rng(k), stamp=k / 40.0)
+        counts.append(len(tracker.update(clusterer.detect(scans), robot)))
+    assert counts[:2] == [0, 0] and counts[2] == 1  # confirmed at the third hit
+    coast = tracker.params.coast_time
+    assert all(c == 1 for c in counts[2 : 20 + int(coast * 40)])
+    assert counts[-1] == 0 and len(tracker) == 0
+
+
+def _clusters(stamp, position, size, kind):
+    n = len(position)
+    circle = np.column_stack((position, size))
+    return Clusters(
+        stamp=stamp,
+        points=np.repeat(position, 3, axis=0),
+        start=np.arange(0, 3 * n + 1, 3),
+        kind=kind.astype(np.int8),
+        centroid=position,
+        position=position,
+        size=size,
+        line=np.where((kind == LINE)[:, None], np.tile(position, 2), np.nan),
+        circle=np.where((kind == CIRCLE)[:, None], circle, np.nan),
+        rms=np.zeros(n),
+        clearance=np.hypot(position[:, 0], position[:, 1]),
+        occluded=np.zeros(n, dtype=bool),
+    )
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    steps=st.lists(
+        st.tuples(
+            st.floats(0.0, 0.5),  # dt, 0 included
+            st.lists(
+                st.tuples(
+                    st.floats(-20, 20),
+                    st.floats(-20, 20),
+                    st.floats(0.0, 3.0),
+                    st.sampled_from([LINE, CIRCLE, BLOB]),
+                ),
+                max_size=6,
+            ),
+            st.tuples(st.floats(-50, 50), st.floats(-50, 50), st.floats(-4, 4)),
+            st.tuples(st.floats(-2, 2), st.floats(-1, 1)),
+        ),
+        min_size=1,
+        max_size=25,
+    )
+)
+def test_tracker_never_produces_nan(steps):
+    tracker = ObstacleTracker(DangerParams(LENGTH, WIDTH))
+    t = 0.0
+    for dt, measured, pose, velocity in steps:
+        t += dt
+        arr = np.array([m[:3] for m in measured], dtype=float).reshape(-1, 3)
+        kind = np.array([m[3] for m in measured], dtype=np.intp)
+        clusters = _clusters(t, arr[:, :2], arr[:, 2], kind)
+        for track in tracker.update(clusters, Pose2(*pose), velocity):
+            values = (*track.position, *track.velocity, track.size, track.clearance, track.age)
+            assert np.all(np.isfinite(values)), track
+            assert np.all(np.isfinite(track.covariance))
+            assert np.all(np.isfinite(track.shape))
+    assert np.all(np.isfinite(tracker.state)) and np.all(np.isfinite(tracker.covariance))
+
+
+# -- danger --------------------------------------------------------------------------------
+DANGER = DangerParams(LENGTH, WIDTH, margin=0.2, r_oa_trigger=2.5, horizon=3.0, imminent_time=1.0)
+
+
+def levels(positions, velocities, sizes, v, omega):
+    p = np.array(positions, dtype=float)
+    clearance = np.hypot(
+        np.maximum(np.abs(p[:, 0]) - LENGTH / 2, 0), np.maximum(np.abs(p[:, 1]) - WIDTH / 2, 0)
+    ) - np.array(sizes)
+    return [
+        Danger(d).name
+        for d in danger_level(
+            p, np.array(velocities, float), np.array(sizes, float), clearance, v, omega, DANGER
+        )
+    ]
+
+
+def test_danger_levels_straight():
+    # at 1 m/s over 3 s the path ends 3 m + half the length ahead
+    assert levels(
+        [(3.0, 0.0), (4.1, 0.0), (4.8, 0.0), (2.0, 2.0), (10.0, 5.0), (3.0, -2.5), (1.6, 0.2)],
+        [(0, 0), (0, 0), (0, 0), (0, 0), (0, 0), (0, 1.0), (0, 0)],
+        [0.3] * 7,
+        1.0,
+        0.0,
+    ) == ["ON_PATH", "ON_PATH", "NONE", "NEAR", "NONE", "ON_PATH", "IMMINENT"]
+    # a walker crossing ahead, 4 m away, will be in the corridor within 3 s; one
+    # walking away from the path is not on it
+    assert levels([(4.0, -3.0), (4.0, -2.0)], [(0, 1.2), (0, -1.2)], [0.3, 0.3], 1.0, 0.0) == [
+        "ON_PATH",
+        "NONE",
+    ]
+
+
+def test_danger_levels_on_an_arc_and_standing_still():
+    # turning left on a 2 m radius: a point on that arc is on the path, the point
+    # straight ahead is not
+    on_arc = (2.0 * math.sin(1.4), 2.0 * (1.0 - math.cos(1.4)))
+    assert levels([on_arc, (4.0, -0.6)], [(0, 0), (0, 0)], [0.2, 0.2], 1.0, 0.5) == [
+        "ON_PATH",
+        "NONE",
+    ]
+    assert levels([(4.0, -0.6)], [(0, 0)], [0.2], 1.0, 0.0) == ["ON_PATH"]
+    # standing still: only what comes at the robot is on its path
+    assert levels([(3.0, 0.0), (3.0, 0.0)], [(0, 0), (-2.0, 0)], [0.3, 0.3], 0.0, 0.0) == [
+        "NEAR",
+        "IMMINENT",
+    ]
+    assert levels([(4.0, 0.0), (4.0, 0.0)], [(0, 0), (-1.0, 0)], [0.3, 0.3], 0.0, 0.0) == [
+        "NONE",
+        "ON_PATH",
+    ]
+
+
+def test_path_distance_arc_and_segment():
+    # straight, 5 m ahead: a point 1 m aside at 2 m along, one behind the start
+    d = path_distance(np.array([[2.0, 1.0], [-1.0, 0.0], [7.0, 0.0]]), 1.0, 0.0, 5.0)
+    assert d == pytest.approx([1.0, 1.0, 2.0])
+    # an arc of radius 2 (v=1, omega=0.5) over a quarter turn
+    rho = 2.0
+    pts = np.array([[rho * math.sin(0.5), rho * (1 - math.cos(0.5))], [0.0, rho], [0, -1.0]])
+    d = path_distance(pts, 1.0, 0.5, rho * math.pi / 2)
+    assert d == pytest.approx([0.0, rho, 1.0])
+    # reversing: the path runs along -x
+    assert path_distance(np.array([[-2.0, 0.5]]), -1.0, 0.0, 5.0) == pytest.approx([0.5])
