@@ -23,11 +23,14 @@ class Node(py_trees.behaviour.Behaviour):
 
     reads: tuple[Key, ...] = ()
     writes: tuple[Key, ...] = ()
+    reads_previous: tuple[Key, ...] = ()
+    """Keys read as the *previous* tick left them: feedback from later nodes (the mission's
+    progress read by sensing). The compiler checks only that something writes them."""
 
     def __init__(self, name: str) -> None:
         super().__init__(name=name)
         self.bb = self.attach_blackboard_client(name=name)
-        for key in self.reads:
+        for key in (*self.reads, *self.reads_previous):
             self.bb.register_key(key=key.name, access=Access.READ)
         for key in self.writes:
             self.bb.register_key(key=key.name, access=Access.WRITE)

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import py_trees
@@ -47,12 +47,20 @@ from behaviours.controllers.motion import (
     GoToGoalController,
     HoldStill,
 )
-from behaviours.guards.conditions import EmergencyStop, NotTrapped, OperatorTakeOver, Reached
+from behaviours.goals import Goal
+from behaviours.guards.conditions import (
+    EmergencyStop,
+    NotTrapped,
+    OperatorTakeOver,
+    PoseNotGoodEnough,
+    Reached,
+)
 from behaviours.keys import COMMAND, EXTERNAL_KEYS, MissionProgress
 from behaviours.laws.go_to_goal import GoToGoalParams
 from behaviours.sensing.features import SenseFeatures
 from behaviours.sensing.localisation import Localise
 from behaviours.sensing.obstacles import SenseObstacles
+from behaviours.sensing.registration import AircraftRegistrar
 from executive.core.frames import AircraftPlacement, Pose2
 from executive.core.geometry import to_shapely
 from executive.core.model import CameraKind, Checkpoint, Frame, Mission, Waypoint
@@ -107,6 +115,8 @@ class CompileOptions:
     """Initial pose estimate in A (default: the charging station)."""
     resume: MissionProgress | None = None
     """Progress journaled by an earlier run: completed checkpoints are not visited again."""
+    register_aircraft: bool = True
+    """Register the aircraft from the laser returns (False: trust the nominal placement)."""
 
 
 @dataclass
@@ -156,22 +166,17 @@ class _Builder:
         near = self.airframe.distance(Point(pose.x, pose.y)) < NEAR_AIRFRAME
         return nav.inspection_speed if near else nav.cruise_speed
 
-    def waypoint_goal(self, wp: Waypoint) -> Callable[[], Pose2]:
-        if wp.frame is Frame.AIRCRAFT:
-            heading = wp.heading if wp.heading is not None else 0.0
-            pose = self.placement.pose_to_airport(Pose2(wp.x, wp.y, heading))
-        else:
-            pose = Pose2(wp.x, wp.y, wp.heading or 0.0)
-        return lambda: pose
+    def waypoint_goal(self, wp: Waypoint) -> Goal:
+        heading = wp.heading if wp.heading is not None else 0.0
+        return Goal(Pose2(wp.x, wp.y, heading), wp.frame, self.placement)
 
-    def checkpoint_goal(self, cp: Checkpoint) -> Callable[[], Pose2]:
-        pose = self.placement.pose_to_airport(cp.pose)
-        return lambda: pose
+    def checkpoint_goal(self, cp: Checkpoint) -> Goal:
+        return Goal(cp.pose, Frame.AIRCRAFT, self.placement)
 
     def navigate(
         self,
         label: str,
-        goal: Callable[[], Pose2],
+        goal: Goal,
         use_heading: bool,
         tolerance: tuple[float, float | None],
     ) -> py_trees.behaviour.Behaviour:
@@ -193,6 +198,17 @@ class _Builder:
                     EmergencyStop(safety.r_es, safety.estop_hold, name="e-stop?"),
                     EStopHold(),
                 ),
+                *(
+                    [
+                        GuardedBranch(
+                            f"relocalise {label}",
+                            PoseNotGoodEnough(),
+                            HoldStill("hold: relocalise"),
+                        )
+                    ]
+                    if goal.frame is Frame.AIRCRAFT
+                    else []
+                ),
                 GuardedBranch(
                     f"reached {label}",
                     Reached(goal, tolerance[0], tolerance[1] if use_heading else None),
@@ -206,6 +222,13 @@ class _Builder:
             memory=False,
             children=[NotTrapped(goal, self.options.trapped_after), guards],
         )
+
+    def registrar(self) -> AircraftRegistrar | None:
+        """The laser registration of the aircraft, when asked for and possible."""
+        m = self.mission
+        if not (self.options.register_aircraft and m.aircraft.footprint and m.platform.lasers):
+            return None
+        return AircraftRegistrar(m.aircraft, dict(m.platform.lasers))
 
     # -- phases -------------------------------------------------------------------------------
     def approach(self) -> py_trees.behaviour.Behaviour:
@@ -225,10 +248,8 @@ class _Builder:
             SetProgress("inspection", checkpoint=cp.id, goal=cp.id)
         ]
         for k, (vx, vy) in enumerate(cp.via, start=1):
-            via = self.placement.pose_to_airport(Pose2(vx, vy, 0.0))
-            children.append(
-                self.navigate(f"{cp.id} via {k}", lambda via=via: via, False, (0.3, None))
-            )
+            via = Goal(Pose2(vx, vy, 0.0), Frame.AIRCRAFT, self.placement)
+            children.append(self.navigate(f"{cp.id} via {k}", via, False, (0.3, None)))
         children.append(
             self.navigate(cp.id, self.checkpoint_goal(cp), True, self.checkpoint_tolerance)
         )
@@ -302,7 +323,7 @@ class _Builder:
         children.append(
             self.navigate(
                 "station",
-                lambda: station,
+                Goal(station),
                 True,
                 (m.navigation.position_tolerance, m.navigation.heading_tolerance),
             )
@@ -316,8 +337,8 @@ class _Builder:
             "sensing",
             memory=False,
             children=[
-                Localise(start, m.platform.track, self.placement),
-                SenseObstacles(m.platform),
+                Localise(start, m.platform.track, self.placement, self.registrar()),
+                SenseObstacles(m.platform, m.airport.zones, m.safety.r_oa_trigger),
                 SenseFeatures(),
             ],
         )
@@ -361,8 +382,10 @@ def check_tree(root: py_trees.behaviour.Behaviour) -> list[str]:
     """Wiring mistakes of a compiled tree (empty when sound)."""
     problems: list[str] = []
     written = {k.name for k in EXTERNAL_KEYS}
+    feedback: list[tuple[str, str]] = []
     for node in _preorder(root):
         if isinstance(node, Node):
+            feedback.extend((node.name, k.name) for k in node.reads_previous)
             for key in node.reads:
                 if key.name not in written:
                     problems.append(
@@ -394,4 +417,7 @@ def check_tree(root: py_trees.behaviour.Behaviour) -> list[str]:
                 f"controller '{node.name}' in '{parent.name}' has no guard "
                 "(only the last child may be unguarded)"
             )
+    for name, key in feedback:
+        if key not in written:
+            problems.append(f"'{name}' reads {key} from the previous tick but nothing writes it")
     return problems

@@ -20,12 +20,19 @@ import numpy as np
 import shapely
 from shapely.geometry import Polygon as ShapelyPolygon
 
-from behaviours.keys import PROGRESS, MissionProgress
+from behaviours.keys import OBSTACLES, POSE, PROGRESS, MissionProgress
 from executive.compiler import CompileOptions, compile_mission
-from executive.core.frames import Pose2, wrap_angle
+from executive.core.frames import AircraftPlacement, Pose2, wrap_angle
 from executive.core.geometry import to_shapely
 from executive.core.model import Frame
-from executive.core.records import OperatorRequests, SensorFrame, VelocityCommand
+from executive.core.records import (
+    Obstacles,
+    OperatorRequests,
+    PoseEstimate,
+    RegistrationRecord,
+    SensorFrame,
+    VelocityCommand,
+)
 from executive.journal import Journal, read_journal
 from executive.runtime import RunResult, Runtime
 from executive.safety import SafetyLayer
@@ -62,6 +69,56 @@ class Sample:
 
 
 @dataclass
+class RegistrationSample:
+    """One registration attempt against the ground truth (robot pose in F)."""
+
+    t: float
+    method: str
+    accepted: bool
+    reason: str
+    position_error: float | None
+    heading_error_deg: float | None
+    rms: float
+    inlier_fraction: float
+
+
+@dataclass
+class LocalisationSample:
+    """The estimate in F against the truth, at TRUTH_RATE_HZ."""
+
+    t: float
+    reference: str
+    position_error: float
+    heading_error_deg: float
+    placement_error: float
+    placement_heading_error_deg: float
+    sigma_f: float
+
+
+@dataclass
+class TrackSample:
+    """A tracked obstacle placed in A with the true robot pose, and the mover it matches
+    (position and velocity errors against that mover's truth; None: no mover near)."""
+
+    t: float
+    id: int
+    kind: str
+    x: float
+    y: float
+    vx: float
+    vy: float
+    danger: int
+    age: float
+    mover: str | None = None
+    position_error: float | None = None
+    velocity_error: float | None = None
+
+
+TRACK_MATCH_RADIUS = 1.0
+"""A track within this distance (m) of a mover's true centre is taken to be that mover."""
+
+
+@dataclass
 class CheckpointOutcome:
     id: str
     reached: bool
@@ -85,6 +142,10 @@ class DryRun:
     warnings: list[str] = field(default_factory=list)
     wall_time: float = 0.0
     resumed_from: tuple[str, ...] = ()
+    registrations: list[RegistrationSample] = field(default_factory=list)
+    localisation: list[LocalisationSample] = field(default_factory=list)
+    tracks: list[TrackSample] = field(default_factory=list)
+    final_placement: AircraftPlacement | None = None
 
     @property
     def succeeded(self) -> bool:
@@ -118,6 +179,11 @@ class _Watcher:
         self.checkpoint_done_at: dict[str, float] = {}
         self.completed_seen: tuple[str, ...] = ()
         self.outcomes: dict[str, CheckpointOutcome] = {}
+        self.registrations: list[RegistrationSample] = []
+        self.localisation: list[LocalisationSample] = []
+        self.tracks: list[TrackSample] = []
+        self._registration: RegistrationRecord | None = None
+        self.final_placement: AircraftPlacement | None = None
 
     def footprint(self, pose: Pose2) -> ShapelyPolygon:
         hl, hw = self.half
@@ -141,18 +207,25 @@ class _Watcher:
             for cp_id in progress.completed[len(self.completed_seen) :]:
                 self._judge_checkpoint(cp_id, t, progress)
             self.completed_seen = progress.completed
+        pose = rt._get(POSE.name)
+        world = self.robot.world
+        true = world.robot_pose
+        if isinstance(pose, PoseEstimate):
+            self._judge_registration(t, pose, true)
+            self.final_placement = pose.placement
         if t + 1e-9 < self._next:
             return
         self._next = t + 1.0 / TRUTH_RATE_HZ
-        world = self.robot.world
-        true = world.robot_pose
+        obstacles = rt._get(OBSTACLES.name)
+        if isinstance(pose, PoseEstimate):
+            self._judge_localisation(t, pose, true)
+        if isinstance(obstacles, Obstacles):
+            self._judge_tracks(t, obstacles, true)
         foot = self.footprint(true)
         inside = {zid for zid, geom in self.zones if geom.intersects(foot)}
         for zid in inside - self._in_zone:
             self.breaches.append((t, zid))
         self._in_zone = inside
-        pose = rt._get("/state/pose")
-        obstacles = rt._get("/state/obstacles")
         # Clearance: the true distance from the footprint to the nearest scene shape.
         scene = world.scene
         pts = (
@@ -181,6 +254,84 @@ class _Watcher:
                 clearance,
             )
         )
+
+    def _judge_registration(self, t: float, pose: PoseEstimate, true: Pose2) -> None:
+        reg = pose.registration
+        if reg is None or reg is self._registration:
+            return
+        self._registration = reg
+        pos_err = head_err = None
+        if reg.pose_f is not None:
+            truth_f = self.true.pose_to_aircraft(true)
+            pos_err = round(reg.pose_f.distance_to(truth_f), 4)
+            head_err = round(math.degrees(abs(wrap_angle(reg.pose_f.theta - truth_f.theta))), 3)
+        self.registrations.append(
+            RegistrationSample(
+                round(t, 3),
+                reg.method,
+                reg.accepted,
+                reg.reason,
+                pos_err,
+                head_err,
+                round(reg.rms, 4) if math.isfinite(reg.rms) else math.nan,
+                round(reg.inlier_fraction, 3),
+            )
+        )
+
+    def _judge_localisation(self, t: float, pose: PoseEstimate, true: Pose2) -> None:
+        truth_f = self.true.pose_to_aircraft(true)
+        est = pose.pose_f
+        placement = pose.placement
+        p_err = p_head = math.nan
+        if placement is not None:
+            p_err = math.hypot(placement.x - self.true.x, placement.y - self.true.y)
+            p_head = math.degrees(abs(wrap_angle(placement.heading - self.true.heading)))
+        cov = pose.covariance_f
+        sigma = math.sqrt(max(float(cov[0, 0] + cov[1, 1]), 0.0)) if cov is not None else math.nan
+        self.localisation.append(
+            LocalisationSample(
+                round(t, 3),
+                str(pose.reference),
+                round(est.distance_to(truth_f), 4),
+                round(math.degrees(abs(wrap_angle(est.theta - truth_f.theta))), 3),
+                round(p_err, 4),
+                round(p_head, 3),
+                round(sigma, 4),
+            )
+        )
+
+    def _judge_tracks(self, t: float, obstacles: Obstacles, true: Pose2) -> None:
+        movers = [
+            (m.agent.id, m.agent.x, m.agent.y, m.agent.vx, m.agent.vy)
+            for m in self.robot.world.moving
+        ]
+        c, s = math.cos(true.theta), math.sin(true.theta)
+        for track in obstacles.tracks:
+            if track.kind == "zone":
+                continue
+            x, y = true.apply(track.position)
+            vx = c * track.velocity[0] - s * track.velocity[1]
+            vy = s * track.velocity[0] + c * track.velocity[1]
+            sample = TrackSample(
+                round(t, 3),
+                track.id,
+                track.kind,
+                float(x),
+                float(y),
+                vx,
+                vy,
+                int(track.danger),
+                track.age,
+            )
+            if movers:
+                d = [math.hypot(mx - x, my - y) for _, mx, my, _, _ in movers]
+                k = int(np.argmin(d))
+                if d[k] <= TRACK_MATCH_RADIUS:
+                    mid, _, _, mvx, mvy = movers[k]
+                    sample.mover = mid
+                    sample.position_error = round(d[k], 4)
+                    sample.velocity_error = round(math.hypot(vx - mvx, vy - mvy), 4)
+            self.tracks.append(sample)
 
     def _judge_checkpoint(self, cp_id: str, t: float, progress: MissionProgress) -> None:
         mission = self.scenario.mission
@@ -306,6 +457,10 @@ def dry_run(
         warnings=[str(w) for w in compiled.warnings],
         wall_time=wall,
         resumed_from=tuple(sorted(done)),
+        registrations=watcher.registrations,
+        localisation=watcher.localisation,
+        tracks=watcher.tracks,
+        final_placement=watcher.final_placement,
     )
 
 

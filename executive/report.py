@@ -24,7 +24,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from executive.dryrun import DryRun
+from executive.dryrun import TRUTH_RATE_HZ, DryRun
 from sim2d.view import draw_world
 
 PALETTE = plt.get_cmap("tab10")
@@ -72,9 +72,75 @@ def metrics(run: DryRun) -> dict[str, object]:
             if e.kind == "safety" and e.detail.get("kind") in STOP_KINDS
         ],
         "geofence_breaches": [{"t": round(t, 2), "zone": z} for t, z in run.breaches],
+        "localisation": localisation_metrics(run),
+        "obstacle_tracking": tracking_metrics(run),
         "tick_timing": result.stats.summary(),
         "warnings": run.warnings,
         "resumed_after": list(run.resumed_from),
+    }
+
+
+def _stats(values: list[float], digits: int = 4) -> dict[str, object]:
+    """n, mean, p95 and max of the finite values (None when there are none)."""
+    v = np.array([x for x in values if x is not None and math.isfinite(x)], dtype=float)
+    if not len(v):
+        return {"n": 0, "mean": None, "p95": None, "max": None}
+    return {
+        "n": len(v),
+        "mean": round(float(v.mean()), digits),
+        "p95": round(float(np.percentile(v, 95)), digits),
+        "max": round(float(v.max()), digits),
+    }
+
+
+def localisation_metrics(run: DryRun) -> dict[str, object]:
+    """Laser registration and the pose in F against the ground truth."""
+    regs = run.registrations
+    by_method = {
+        m: {
+            "attempts": sum(r.method == m for r in regs),
+            "accepted": sum(r.method == m and r.accepted for r in regs),
+        }
+        for m in ("global", "icp")
+    }
+    accepted = [r for r in regs if r.accepted]
+    loc = run.localisation
+    period = 1.0 / TRUTH_RATE_HZ
+    time_by_reference: dict[str, float] = {}
+    for s in loc:
+        time_by_reference[s.reference] = time_by_reference.get(s.reference, 0.0) + period
+    registered = [s for s in loc if s.reference == "aircraft"]
+    last = loc[-1] if loc else None
+    return {
+        "registrations": by_method,
+        "registration_position_error_m": _stats([r.position_error for r in accepted]),
+        "registration_heading_error_deg": _stats([r.heading_error_deg for r in accepted], 3),
+        "pose_f_position_error_m": _stats([s.position_error for s in loc]),
+        "pose_f_position_error_registered_m": _stats([s.position_error for s in registered]),
+        "pose_f_heading_error_deg": _stats([s.heading_error_deg for s in loc], 3),
+        "placement_error_final": None
+        if last is None
+        else {"position_m": last.placement_error, "heading_deg": last.placement_heading_error_deg},
+        "time_by_reference_s": {k: round(v, 1) for k, v in time_by_reference.items()},
+    }
+
+
+TRACK_SETTLED_AGE = 1.0
+"""Tracking errors are measured on tracks at least this old (s): a new track's velocity
+is still converging."""
+
+
+def tracking_metrics(run: DryRun) -> dict[str, object]:
+    """Tracked obstacles against the movers' ground truth."""
+    tracks = run.tracks
+    matched = [s for s in tracks if s.mover is not None and s.age >= TRACK_SETTLED_AGE]
+    return {
+        "tracks": len({s.id for s in tracks}),
+        "movers_tracked": sorted({s.mover for s in matched if s.mover is not None}),
+        "matched_samples": len(matched),
+        "position_error_m": _stats([s.position_error for s in matched]),
+        "velocity_error_mps": _stats([s.velocity_error for s in matched]),
+        "on_path_samples": sum(s.danger >= 2 for s in tracks),
     }
 
 
@@ -98,6 +164,7 @@ KINDS = (
     ("emergency", "emergency stop"),
     ("stop", "stop"),
     ("operator", "operator control"),
+    ("hold: relocalise", "relocalise (registration)"),
 )
 
 
@@ -135,6 +202,8 @@ def trajectory(run: DryRun, path: Path) -> None:
         else:
             label = f"{cp.id} {'(resumed)' if outcome.reached else 'not reached'}"
         ax.annotate(label, (pose.x, pose.y), fontsize=5, xytext=(4, -8), textcoords="offset points")
+    _draw_tracks(ax, run)
+    _draw_registration(ax, run)
     for t, zone in run.breaches:
         s = min(samples, key=lambda s: abs(s.t - t))
         ax.plot(s.true.x, s.true.y, "rx", ms=10, mew=2)
@@ -158,13 +227,70 @@ def trajectory(run: DryRun, path: Path) -> None:
     plt.close(fig)
 
 
+def _draw_tracks(ax: plt.Axes, run: DryRun) -> None:
+    """Each tracked obstacle's path (placed with the true robot pose), thin and grey;
+    red where it was on the robot's path."""
+    by_id: dict[int, list] = {}
+    for s in run.tracks:
+        by_id.setdefault(s.id, []).append(s)
+    labelled = False
+    for samples in by_id.values():
+        if len(samples) < 2:
+            continue
+        xy = np.array([(s.x, s.y) for s in samples])
+        moved = float(np.hypot(*(xy[-1] - xy[0]))) > 1.0
+        if not moved:
+            continue  # static obstacles are drawn by the world already
+        ax.plot(
+            *xy.T,
+            color="0.45",
+            lw=0.7,
+            ls=":",
+            zorder=5,
+            label=None if labelled else "tracked obstacles",
+        )
+        labelled = True
+        danger = np.array([s.danger >= 2 for s in samples])
+        if danger.any():
+            ax.plot(*xy[danger].T, ".", color="red", ms=2, zorder=5)
+
+
+def _draw_registration(ax: plt.Axes, run: DryRun) -> None:
+    """Where the global registrations happened, and the estimated aircraft footprint at
+    the end of the run (dashed) over the true one."""
+    for r in run.registrations:
+        if r.method != "global":
+            continue
+        s = min(run.samples, key=lambda s: abs(s.t - r.t)) if run.samples else None
+        if s is None:
+            continue
+        ax.plot(
+            s.true.x,
+            s.true.y,
+            marker="D",
+            ms=5,
+            zorder=7,
+            color="green" if r.accepted else "orange",
+            mec="black",
+            mew=0.4,
+        )
+    if run.final_placement is None:
+        return
+    for shape in run.scenario.mission.aircraft.footprint:
+        pts = run.final_placement.to_airport_xy(shape.vertices(32))
+        ring = np.vstack((pts, pts[:1]))
+        ax.plot(*ring.T, color="green", lw=0.8, ls="--", zorder=6)
+    ax.plot([], [], color="green", lw=0.8, ls="--", label="footprint as registered")
+    ax.plot([], [], "D", color="green", mec="black", mew=0.4, ms=5, label="global registration")
+
+
 def timeline(run: DryRun, path: Path) -> None:
     samples = run.samples
     if not samples:
         return
     t = np.array([s.t for s in samples])
     safety = run.scenario.mission.safety
-    fig, axes = plt.subplots(4, 1, figsize=(11, 8), dpi=100, sharex=True)
+    fig, axes = plt.subplots(5, 1, figsize=(11, 10), dpi=100, sharex=True)
     colours = _controller_colours(run)
     names = list(colours)
     idx = np.array([names.index(controller_kind(s.controller)) for s in samples])
@@ -182,7 +308,18 @@ def timeline(run: DryRun, path: Path) -> None:
     axes[3].set_ylim(0, max(6.0, safety.r_oa_trigger * 2))
     axes[3].set_ylabel("closest (m)")
     axes[3].legend(fontsize=7, loc="upper right")
-    axes[3].set_xlabel("simulated time (s)")
+    loc = run.localisation
+    if loc:
+        lt = np.array([s.t for s in loc])
+        axes[4].plot(lt, [s.position_error * 100 for s in loc], lw=0.8, label="pose in F error")
+        axes[4].plot(lt, [s.sigma_f * 100 for s in loc], lw=0.8, ls="--", label="sigma_F (filter)")
+        for r in run.registrations:
+            if r.method == "global":
+                axes[4].axvline(r.t, color="green" if r.accepted else "orange", lw=0.6)
+        axes[4].set_yscale("symlog", linthresh=10.0)
+        axes[4].legend(fontsize=7, loc="upper right")
+    axes[4].set_ylabel("F error (cm)")
+    axes[4].set_xlabel("simulated time (s)")
     for ax in axes:
         ax.grid(True, lw=0.3, alpha=0.5)
     fig.tight_layout()

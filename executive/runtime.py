@@ -31,7 +31,13 @@ from behaviours.keys import (
     MissionProgress,
 )
 from executive.compiler import CompiledMission, GuardedBranch
-from executive.core.records import OperatorRequests, SensorFrame, VelocityCommand
+from executive.core.records import (
+    OperatorRequests,
+    PoseEstimate,
+    RegistrationRecord,
+    SensorFrame,
+    VelocityCommand,
+)
 from executive.core.robot import RobotInterface
 from executive.journal import Journal
 from executive.safety import SafetyLayer
@@ -143,6 +149,8 @@ class Runtime:
         self.controller = "none"
         self.command = VelocityCommand.stop()
         self.sent = VelocityCommand.stop()
+        self.reference: tuple[str, str] = ("", "")
+        self._registration: RegistrationRecord | None = None
 
     def _get(self, key: str) -> object:
         try:
@@ -208,6 +216,10 @@ class Runtime:
             obstacles=self._get(OBSTACLES.name),
             reset_requested=operator.reset_estop,
         )
+        pose = self._get(POSE.name)
+        placement = getattr(pose, "placement", None)
+        if placement is not None:
+            self.safety.set_placement(placement)
         self.stats.durations.append(time.perf_counter() - t0)
         self.robot.send(self.sent)
         self._record(now)
@@ -224,12 +236,42 @@ class Runtime:
             self.controller = name
         for ev in self.safety.drain_events():
             self.events.append(Event(ev.stamp, "safety", {"kind": ev.kind, "reason": ev.reason}))
+        pose = self._get(POSE.name)
+        if isinstance(pose, PoseEstimate):
+            self._record_localisation(now, pose)
         if self.journal is not None:
             progress = self._get(PROGRESS.name)
-            pose = self._get(POSE.name)
             if isinstance(progress, MissionProgress):
                 p = getattr(pose, "pose_a", None)
                 self.journal.record(now, progress, None if p is None else (p.x, p.y, p.theta))
+
+    def _record_localisation(self, now: float, pose: PoseEstimate) -> None:
+        """Events: what the pose in F is anchored to, and every global registration or
+        refused one (the periodic ICP tracking updates are in the report's series)."""
+        reference = (str(pose.reference), pose.anchor)
+        if reference != self.reference:
+            self.events.append(
+                Event(
+                    now,
+                    "localisation",
+                    {"reference": reference[0], "anchor": reference[1], "from": self.reference[0]},
+                )
+            )
+            self.reference = reference
+        reg = pose.registration
+        if reg is None or reg is self._registration:
+            return
+        self._registration = reg
+        if reg.method == "global" or not reg.accepted:
+            detail: dict[str, object] = {
+                "method": reg.method,
+                "accepted": reg.accepted,
+                "reason": reg.reason,
+            }
+            if reg.pose_f is not None:
+                detail["rms"] = round(reg.rms, 4)
+                detail["inliers"] = round(reg.inlier_fraction, 3)
+            self.events.append(Event(now, "registration", detail))
 
     def run(self, max_time: float = math.inf) -> RunResult:
         """Tick until the mission succeeds, fails, or ``max_time`` (s) has passed."""

@@ -97,7 +97,7 @@ from shapely.geometry.base import BaseGeometry
 
 from behaviours.laws import estop
 from behaviours.laws.estop import EStopLatch
-from executive.core.frames import AircraftPlacement, FloatArray
+from executive.core.frames import AircraftPlacement, FloatArray, wrap_angle
 from executive.core.model import Circle, ForbiddenZone, Frame, Mission
 from executive.core.records import (
     Obstacles,
@@ -496,9 +496,22 @@ class SafetyLayer:
         self._limits_reported: set[str] = set()
 
     # -- public API -------------------------------------------------------------------------------
-    def set_placement(self, placement: AircraftPlacement) -> None:
-        """The executive's current estimate of where the aircraft stands."""
-        if placement == self._placement:
+    def set_placement(
+        self,
+        placement: AircraftPlacement,
+        tolerance: tuple[float, float] = (0.01, math.radians(0.05)),
+    ) -> None:
+        """The executive's current estimate of where the aircraft stands.
+
+        Changes smaller than ``tolerance`` (m, rad) are ignored: the pose filter nudges
+        the placement on every GPS fix, and rebuilding the zones for a millimetre would
+        cost every tick for nothing (the geofence margin is decimetres).
+        """
+        old = self._placement
+        if old is not None and (
+            math.hypot(placement.x - old.x, placement.y - old.y) < tolerance[0]
+            and abs(wrap_angle(placement.heading - old.heading)) < tolerance[1]
+        ):
             return
         self._placement = placement
         self._moving = _ZoneSet(self._aircraft_zones, placement)

@@ -52,6 +52,27 @@ def test_preflight_on_the_clear_apron(kind, tmp_path):
     assert switches and all("reason" in e for e in switches)
 
 
+@pytest.mark.parametrize("kind", ["a320", "b737-800"])
+def test_preflight_with_the_aircraft_parked_off_its_mark(kind, tmp_path):
+    """ISSUE 5 acceptance: the aircraft is parked off its nominal pose (offset apron:
+    about a metre and 5-6 deg); the laser registration finds it, so every checkpoint
+    (given in F) is reached within 0.15 m and 5 deg of where it really is."""
+    run = dry_run(load_scenario(MISSIONS / kind / "scenarios" / "offset-apron.xml"))
+    _assert_mission_succeeded(run)
+    report = metrics(run)
+    loc = report["localisation"]
+    assert loc["registrations"]["global"]["accepted"] >= 1
+    assert loc["registrations"]["icp"]["accepted"] > 10
+    assert loc["registration_position_error_m"]["p95"] < 0.05
+    assert loc["registration_heading_error_deg"]["p95"] < 0.5
+    assert loc["placement_error_final"]["position_m"] < 0.1
+    assert loc["placement_error_final"]["heading_deg"] < 0.3
+    kinds = [e.kind for e in run.result.events]
+    assert "registration" in kinds and "localisation" in kinds
+    out = write_report(run, tmp_path / "report")
+    assert (out / "trajectory.png").stat().st_size > 10_000
+
+
 LAB = {"mission_type": "lab", "mission": "visual-servoing.xml"}
 
 

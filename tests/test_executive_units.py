@@ -8,6 +8,7 @@ import py_trees
 import pytest
 
 from behaviours.controllers.motion import CorrectCameraAngle
+from behaviours.goals import Goal
 from behaviours.guards.conditions import NotTrapped, ObstacleTrigger, Reached
 from behaviours.keys import COMMAND, OBSTACLES, POSE, ItemResult, MissionProgress
 from executive.cli import main
@@ -54,7 +55,7 @@ def test_obstacle_trigger_engages_below_r_oa_and_releases_with_hysteresis():
 
 def test_not_trapped_fails_after_the_period_without_progress():
     bb = _writer(POSE)
-    guard = NotTrapped(lambda: Pose2(10.0, 0.0, 0.0), period=5.0)
+    guard = NotTrapped(Goal(Pose2(10.0, 0.0, 0.0)), period=5.0)
     for t in np.arange(0.0, 4.9, 0.1):  # progressing
         bb.set(POSE.name, _pose(t, 0.0, t=t), overwrite=True)
         guard.tick_once()
@@ -67,7 +68,7 @@ def test_not_trapped_fails_after_the_period_without_progress():
 
 def test_reached_needs_position_and_heading():
     bb = _writer(POSE)
-    guard = Reached(lambda: Pose2(1.0, 1.0, 0.5), 0.05, math.radians(2))
+    guard = Reached(Goal(Pose2(1.0, 1.0, 0.5)), 0.05, math.radians(2))
     for pose, expected in (
         (_pose(1.0, 1.0, 0.5), S.SUCCESS),
         (_pose(1.0, 1.1, 0.5), S.FAILURE),

@@ -637,3 +637,30 @@ def test_law_is_pure():
         m.split(".")[0] in {"__future__", "math", "dataclasses", "enum", "typing", "executive"}
         for m in modules
     )
+
+
+def test_a_goal_re_resolved_every_tick_stays_reached():
+    """An aircraft-frame goal is re-resolved in A at every tick through the placement
+    estimate, which the pose filter nudges by millimetres on every GPS fix: the law must
+    not restart its approach for that (it used to, and dithered around the goal)."""
+    goal = Pose2(3.0, 1.0, 0.5)
+    run = simulate(TIGHT, Pose2(0.0, 0.0, 0.0), goal)
+    assert run.reached
+    law = GoToGoal(TIGHT)
+    for pose in run.poses:  # replay the run: the law ends in the same (reached) state
+        law.command(pose, goal, True, dt=DT)
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        jx, jy, jt = rng.normal(0.0, 0.003, 3)
+        nudged = Pose2(goal.x + jx, goal.y + jy, goal.theta + 0.1 * jt)
+        out = law.command(run.pose, nudged, True, v_now=0.0, dt=DT)
+        assert out.reached and out.v == 0.0 and out.omega == 0.0
+
+
+def test_a_goal_that_really_moves_restarts_the_approach():
+    law = GoToGoal(TIGHT)
+    pose = Pose2(0.0, 0.0, 0.0)
+    law.command(pose, Pose2(3.0, 0.0, 0.0), True, v_now=0.0, dt=DT)
+    assert law._same_goal((3.0 + 0.02, 0.0, 0.0))
+    assert not law._same_goal((3.0 + 0.1, 0.0, 0.0))
+    assert not law._same_goal((3.0, 0.0, math.radians(5.0)))

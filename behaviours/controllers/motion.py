@@ -8,6 +8,7 @@ from collections.abc import Callable
 import py_trees
 
 from behaviours.base import Controller
+from behaviours.goals import Goal
 from behaviours.keys import COMMAND, POSE, SENSOR_FRAME
 from behaviours.laws.go_to_goal import GoToGoal, GoToGoalParams
 from executive.core.frames import Pose2, aircraft_from_robot, pan_tilt_towards
@@ -31,7 +32,8 @@ class EStopHold(Controller):
 
 
 class HoldStill(Controller):
-    """Zero command while the operator has the robot (collaborative mode stand-in)."""
+    """Zero command: while the operator has the robot (collaborative mode stand-in), or
+    while the pose is re-measured (``name`` says which)."""
 
     writes = (COMMAND,)
 
@@ -46,8 +48,8 @@ class HoldStill(Controller):
 class GoToGoalController(Controller):
     """Metric go-to-goal in the airport frame (seed lines 1260-1378).
 
-    ``goal`` gives the goal pose in A (a checkpoint given in F is converted through the
-    current aircraft placement by the caller); ``speed_limit`` the speed allowed at a pose
+    ``goal`` is resolved in A at every tick (a checkpoint given in F through the pose
+    estimate's current aircraft placement); ``speed_limit`` the speed allowed at a pose
     (slower near the airframe). RUNNING while moving, SUCCESS when the law reports the
     goal reached.
     """
@@ -57,7 +59,7 @@ class GoToGoalController(Controller):
 
     def __init__(
         self,
-        goal: Callable[[], Pose2],
+        goal: Goal,
         params: GoToGoalParams,
         use_heading: bool,
         period: float,
@@ -93,7 +95,8 @@ class GoToGoalController(Controller):
         if pose is None:
             self.write(COMMAND, VelocityCommand.stop())
             return Status.RUNNING
-        out = self.law.command(pose.pose_a, self.goal(), self.use_heading, self.last_v, self.period)
+        goal = self.goal.in_airport(pose)
+        out = self.law.command(pose.pose_a, goal, self.use_heading, self.last_v, self.period)
         v = out.v
         if self.speed_limit is not None:
             cap = self.speed_limit(pose.pose_a)

@@ -7,14 +7,14 @@ logs it as the reason of the controller switch it causes.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 
 import py_trees
 
 from behaviours.base import Guard
+from behaviours.goals import Goal
 from behaviours.keys import OBSTACLES, OPERATOR, POSE, SENSOR_FRAME
 from behaviours.laws.estop import EStopLatch
-from executive.core.frames import Pose2, wrap_angle
+from executive.core.frames import wrap_angle
 from executive.core.records import Obstacles, OperatorRequests, PoseEstimate, SensorFrame
 
 Status = py_trees.common.Status
@@ -64,6 +64,52 @@ class ObstacleTrigger(Guard):
         return Status.SUCCESS if self.engaged else Status.FAILURE
 
 
+class PoseNotGoodEnough(Guard):
+    """The pose in F is too uncertain to steer to an aircraft-frame goal: stop and let
+    the laser registration measure it (the thesis stops for every point-cloud matching,
+    seed lines 1053-1070; here only when the estimate is not good enough while moving).
+
+    Engages when ``confidence_f`` falls below ``low`` and releases above ``high``
+    (hysteresis). A hold lasts at most ``max_hold`` s: if the registration cannot help
+    (the aircraft hidden by vehicles), the robot goes on with the estimate it has (the
+    last-checkpoint frame) and the guard rests for ``cooldown`` s, so it never deadlocks.
+    """
+
+    reads = (POSE,)
+
+    def __init__(
+        self,
+        low: float = 0.3,
+        high: float = 0.6,
+        max_hold: float = 5.0,
+        cooldown: float = 20.0,
+        name: str = "pose not good enough?",
+    ) -> None:
+        super().__init__(name)
+        self.low, self.high = low, high
+        self.max_hold, self.cooldown = max_hold, cooldown
+        self.engaged = False
+        self._since = 0.0
+        self._rest_until = -math.inf
+
+    def update(self) -> Status:
+        pose: PoseEstimate | None = self.read(POSE)
+        if pose is None:
+            return Status.FAILURE
+        now, confidence = pose.stamp, pose.confidence_f
+        if self.engaged:
+            if confidence >= self.high:
+                self.engaged = False
+            elif now - self._since > self.max_hold:
+                self.engaged = False
+                self._rest_until = now + self.cooldown
+        elif confidence < self.low and now >= self._rest_until:
+            self.engaged, self._since = True, now
+        where = f"{pose.reference}{' ' + pose.anchor if pose.anchor else ''}"
+        self.feedback_message = f"confidence_F {confidence:.2f} (low {self.low:.2f}), {where}"
+        return Status.SUCCESS if self.engaged else Status.FAILURE
+
+
 class NotTrapped(Guard):
     """FAILURE once the robot has made no progress towards its goal for ``period`` s.
 
@@ -76,7 +122,7 @@ class NotTrapped(Guard):
 
     def __init__(
         self,
-        goal: Callable[[], Pose2],
+        goal: Goal,
         period: float,
         min_progress: float = 0.25,
         name: str = "not trapped?",
@@ -95,7 +141,7 @@ class NotTrapped(Guard):
         pose: PoseEstimate | None = self.read(POSE)
         if pose is None:
             return Status.SUCCESS
-        goal = self.goal()
+        goal = self.goal.in_airport(pose)
         d = math.hypot(goal.x - pose.pose_a.x, goal.y - pose.pose_a.y)
         now = pose.stamp
         if now - self._seen > 1.0:
@@ -115,7 +161,7 @@ class Reached(Guard):
 
     def __init__(
         self,
-        goal: Callable[[], Pose2],
+        goal: Goal,
         position_tolerance: float,
         heading_tolerance: float | None,
         name: str = "reached?",
@@ -129,7 +175,7 @@ class Reached(Guard):
         pose: PoseEstimate | None = self.read(POSE)
         if pose is None:
             return Status.FAILURE
-        goal = self.goal()
+        goal = self.goal.in_airport(pose)
         d = math.hypot(goal.x - pose.pose_a.x, goal.y - pose.pose_a.y)
         ok = d <= self.position_tolerance
         if self.heading_tolerance is not None:

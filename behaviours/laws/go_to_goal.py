@@ -22,7 +22,9 @@ Phases (``GoToGoalOutput.phase``)
     Both tolerances hold (the goal heading only if one was given); the command is a stop.
     Leaving needs a margin: the approach restarts beyond ``reapproach_factor`` x the
     position tolerance, the final turn beyond ``reheading_factor`` x the heading
-    tolerance. A new goal restarts the approach.
+    tolerance. A new goal restarts the approach; a goal that only moved by less than half
+    the tolerances (an aircraft-frame goal re-resolved through a placement estimate that
+    the pose filter nudges on every GPS fix or registration) is the same goal.
 
 Driving towards the goal point (rather than stopping at the edge of the tolerance disc)
 and braking on the way leaves the whole tolerance as margin for slip and noise.
@@ -426,7 +428,7 @@ class GoToGoal:
         pose = Pose2(float(pose.x), float(pose.y), float(pose.theta))
         goal = Pose2(float(goal.x), float(goal.y), float(goal.theta))
         key = (goal.x, goal.y, goal.theta if goal_heading else None)
-        if key != self._goal_key:
+        if not self._same_goal(key):
             self._goal_key = key
             self._restart()
         v0 = self._v_last if v_now is None else float(v_now)
@@ -459,6 +461,18 @@ class GoToGoal:
             return self._emit(0.0, 0.0, v0, w0, dt, Phase.REACHED, True, d, e_goal)
         omega = 0.0 if not halted else self._turn_omega(e_goal)
         return self._emit(0.0, omega, v0, w0, dt, Phase.FINAL_TURN, False, d, e_goal)
+
+    def _same_goal(self, key: tuple[float, float, float | None]) -> bool:
+        """Within half the tolerances of the goal the current approach was started for."""
+        old = self._goal_key
+        if old is None or (old[2] is None) != (key[2] is None):
+            return False
+        p = self.params
+        if math.hypot(key[0] - old[0], key[1] - old[1]) > 0.5 * p.position_tolerance:
+            return False
+        if key[2] is None or old[2] is None:
+            return True
+        return abs(wrap_angle(key[2] - old[2])) <= 0.5 * p.heading_tolerance
 
     # -- approach -----------------------------------------------------------------------
     def _approach(

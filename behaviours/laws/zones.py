@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from behaviours.laws.obstacles import footprint_distances
-from executive.core.frames import AircraftPlacement, FloatArray, Pose2
+from executive.core.frames import AircraftPlacement, FloatArray, Pose2, wrap_angle
 from executive.core.model import Circle, ForbiddenZone, Frame
 
 
@@ -88,9 +88,18 @@ class VirtualWalls:
         self._placement: AircraftPlacement | None = None
         self._airport: list[FloatArray] = []
         self._airport_vertices: list[FloatArray] = []
+        self._boxes = np.zeros((0, 4))
 
     def _in_airport(self, placement: AircraftPlacement) -> None:
-        if placement == self._placement and self._airport:
+        """Zone points in A; recomputed when the placement moved by 1 cm or 0.05 deg (the
+        pose filter nudges it on every GPS fix)."""
+        old = self._placement
+        if (
+            old is not None
+            and self._airport
+            and math.hypot(placement.x - old.x, placement.y - old.y) < 0.01
+            and abs(wrap_angle(placement.heading - old.heading)) < math.radians(0.05)
+        ):
             return
         self._placement = placement
         self._airport, self._airport_vertices = [], []
@@ -101,17 +110,30 @@ class VirtualWalls:
             else:
                 self._airport.append(pts)
                 self._airport_vertices.append(verts)
+        self._boxes = np.array([(*p.min(axis=0), *p.max(axis=0)) for p in self._airport]).reshape(
+            -1, 4
+        )
 
     def sense(
         self, pose_a: Pose2, placement: AircraftPlacement
     ) -> tuple[FloatArray, list[ZoneWall]]:
         """Virtual points (M, 2) in R within ``radius`` of the robot, and the walls."""
         self._in_airport(placement)
-        inverse = pose_a.inverse()
         parts: list[FloatArray] = []
         walls: list[ZoneWall] = []
-        r2 = self.radius**2
-        for k, (zone, pts_a) in enumerate(zip(self.zones, self._airport, strict=True)):
+        boxes, r = self._boxes, self.radius
+        near_box = (
+            (boxes[:, 0] - r <= pose_a.x)
+            & (pose_a.x <= boxes[:, 2] + r)
+            & (boxes[:, 1] - r <= pose_a.y)
+            & (pose_a.y <= boxes[:, 3] + r)
+        )
+        if not near_box.any():
+            return np.zeros((0, 2)), walls
+        inverse = pose_a.inverse()
+        r2 = r * r
+        for k in np.flatnonzero(near_box).tolist():
+            zone, pts_a = self.zones[k], self._airport[k]
             d = pts_a - pose_a.position
             near = np.einsum("ij,ij->i", d, d) <= r2
             if not near.any():

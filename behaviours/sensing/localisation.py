@@ -1,36 +1,52 @@
-"""Wheel odometry + IMU + GPS -> :class:`PoseEstimate` (extended Kalman filter).
+"""Wheel odometry + IMU + GPS + laser registration -> :class:`PoseEstimate`.
 
-A thin adapter over :class:`behaviours.laws.localisation.PoseFilter`: predict on every new
-wheel reading (thesis eq. 2.1, 2.2, with the IMU's yaw rate), correct on every new GPS
-fix. The pose in the aircraft frame goes through the executive's current aircraft
-placement (the nominal parking pose until the laser registration measures it).
+A thin adapter over :class:`behaviours.laws.localisation.PoseFilter` (an EKF on the
+robot's pose in A augmented with the aircraft placement): predict on every new wheel
+reading (thesis eq. 2.1, 2.2, with the IMU's yaw rate), correct on every new GPS fix, and
+on every laser registration of the aircraft the :class:`AircraftRegistrar` makes. The
+pose in the aircraft frame is the filter's, through its *estimated* placement: the
+nominal parking pose only until the first registration.
 """
 
 from __future__ import annotations
 
+import math
+
 import py_trees
 
 from behaviours.base import Node
-from behaviours.keys import POSE, SENSOR_FRAME
+from behaviours.keys import POSE, PROGRESS, SENSOR_FRAME, MissionProgress
 from behaviours.laws.localisation import PoseFilter
+from behaviours.sensing.registration import AircraftRegistrar
 from executive.core.frames import AircraftPlacement, Pose2
-from executive.core.records import SensorFrame
+from executive.core.records import FrameReference, RegistrationRecord, SensorFrame
 
 
 class Localise(Node):
-    """Fuse odometry, IMU and GPS; publish the pose in A and in F."""
+    """Fuse odometry, IMU, GPS and the aircraft registration; publish the pose in A and F.
+
+    ``registrar`` None: no laser registration (the pose in F stays on the nominal
+    placement, e.g. a mission whose aircraft has no footprint in laser range).
+    """
 
     reads = (SENSOR_FRAME,)
+    reads_previous = (PROGRESS,)
     writes = (POSE,)
 
     def __init__(
-        self, initial: Pose2, track: float, placement: AircraftPlacement, name: str = "localise"
+        self,
+        initial: Pose2,
+        track: float,
+        placement: AircraftPlacement,
+        registrar: AircraftRegistrar | None = None,
+        name: str = "localise",
     ) -> None:
         super().__init__(name)
-        self.filter = PoseFilter(initial, track=track)
-        self.placement = placement
+        self.filter = PoseFilter(initial, track=track, placement=placement)
+        self.registrar = registrar
         self._wheels_stamp: float | None = None
         self._gps_stamp: float | None = None
+        self._last: RegistrationRecord | None = None
 
     def update(self) -> py_trees.common.Status:
         frame: SensorFrame = self.read(SENSOR_FRAME)
@@ -45,13 +61,33 @@ class Localise(Node):
             sources.append("odometry")
             if frame.imu is not None:
                 sources.append("imu")
+            if self.registrar is not None:
+                self.registrar.record_pose(wheels.stamp, self.filter.pose)
         gps = frame.gps
         if gps is not None and gps.stamp != self._gps_stamp:
             self.filter.update_gps(gps)
             self._gps_stamp = gps.stamp
             sources.append("gps")
-        estimate = self.filter.estimate(frame.stamp, self.placement, tuple(sources))
+        reference, anchor = FrameReference.NOMINAL, ""
+        if self.registrar is not None:
+            record = self.registrar.step(frame, self.filter)
+            if record is not None:
+                self._last = record
+                if record.accepted:
+                    sources.append(f"registration-{record.method}")
+            reference = self.registrar.reference()
+            if reference is FrameReference.CHECKPOINT:
+                progress: MissionProgress | None = self.read(PROGRESS, None)
+                anchor = progress.completed[-1] if progress and progress.completed else ""
+            elif reference is FrameReference.AIRCRAFT:
+                anchor = "registration"
+        estimate = self.filter.estimate(
+            frame.stamp, tuple(sources), reference, anchor, registration=self._last
+        )
         self.write(POSE, estimate)
-        sigma = self.filter.position_sigma
-        self.feedback_message = f"sigma {sigma:.3f} m, confidence {estimate.confidence:.2f}"
+        cov_f = self.filter.covariance_f
+        sigma = math.sqrt(max(float(cov_f[0, 0] + cov_f[1, 1]), 0.0))
+        self.feedback_message = (
+            f"sigma_F {sigma:.3f} m, confidence_F {estimate.confidence_f:.2f}, {reference}"
+        )
         return py_trees.common.Status.SUCCESS

@@ -187,6 +187,29 @@ class FrameReference(StrEnum):
 
 
 @dataclass(frozen=True, slots=True, eq=False)
+class RegistrationRecord:
+    """One attempt to register the aircraft from the laser returns.
+
+    ``stamp`` is when the result was used (the pose estimate's time) and ``scan_stamp``
+    the scans' time; ``method`` is ``global`` (RANSAC then ICP) or ``icp`` (tracking
+    refinement); ``pose_f`` the measured robot pose in F carried forward by odometry from
+    ``scan_stamp`` to ``stamp``, with its 3x3 ``covariance``; ``rms`` (m) and
+    ``inlier_fraction`` the fit quality; ``accepted`` whether the pose filter took it and
+    ``reason`` why not (or what it did: ``update``, ``reset``).
+    """
+
+    stamp: float
+    scan_stamp: float
+    method: str
+    pose_f: Pose2 | None
+    covariance: FloatArray | None
+    rms: float
+    inlier_fraction: float
+    accepted: bool
+    reason: str = ""
+
+
+@dataclass(frozen=True, slots=True, eq=False)
 class PoseEstimate:
     """The robot's estimated pose at ``stamp``.
 
@@ -195,7 +218,8 @@ class PoseEstimate:
     the aircraft stands (``placement``), with its own 3x3 ``covariance_f``; ``confidence``
     in [0, 1] summarises the covariance in A, ``confidence_f`` the one in F (1: sure).
     ``reference`` says what ``pose_f`` is anchored to and ``anchor`` names it (the
-    checkpoint id when the reference is the last checkpoint).
+    checkpoint id when the reference is the last checkpoint); ``registration`` is the
+    latest laser registration attempt.
     """
 
     stamp: float
@@ -209,6 +233,7 @@ class PoseEstimate:
     confidence_f: float = 1.0
     reference: FrameReference = FrameReference.NOMINAL
     anchor: str = ""
+    registration: RegistrationRecord | None = None
 
 
 class Danger(IntEnum):
