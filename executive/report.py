@@ -228,8 +228,10 @@ def trajectory(run: DryRun, path: Path) -> None:
 
 
 def _draw_tracks(ax: plt.Axes, run: DryRun) -> None:
-    """Each tracked obstacle's path (placed with the true robot pose), thin and grey;
-    red where it was on the robot's path."""
+    """Each moving tracked obstacle's path (placed with the true robot pose), dotted grey;
+    red where it was on the robot's path. Static ones (the world draws them) are left out:
+    a track is drawn when it travelled over 1 m at a median tracked speed over 0.3 m/s
+    (the centroid of a long static face slides as the robot passes, without speed)."""
     by_id: dict[int, list] = {}
     for s in run.tracks:
         by_id.setdefault(s.id, []).append(s)
@@ -238,9 +240,9 @@ def _draw_tracks(ax: plt.Axes, run: DryRun) -> None:
         if len(samples) < 2:
             continue
         xy = np.array([(s.x, s.y) for s in samples])
-        moved = float(np.hypot(*(xy[-1] - xy[0]))) > 1.0
-        if not moved:
-            continue  # static obstacles are drawn by the world already
+        speed = float(np.median([math.hypot(s.vx, s.vy) for s in samples]))
+        if float(np.hypot(*(xy[-1] - xy[0]))) <= 1.0 or speed <= 0.3:
+            continue
         ax.plot(
             *xy.T,
             color="0.45",

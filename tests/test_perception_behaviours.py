@@ -131,3 +131,24 @@ def test_zone_walls_are_virtual_obstacles_near_a_zone(tmp_path):
     assert len(seen.virtual) > 10
     assert seen.closest_virtual == pytest.approx(zones[0].clearance)
     assert seen.closest_any <= seen.closest
+
+
+def test_a_lost_registration_falls_back_to_the_last_checkpoint_frame_and_recovers(tmp_path):
+    """Both lasers drop out for 8 s after the aircraft was registered: the estimate says
+    its pose in F is carried from the last checkpoint (seed lines 1030-1040), then the
+    registration comes back with the lasers."""
+    faults = (
+        '<faults><laser-dropout laser="front" at="2" duration="8"/>'
+        '<laser-dropout laser="rear" at="2" duration="8"/></faults>'
+    )
+    scenario = make_scenario(tmp_path, OFFSET + start(-9.0, -12.0, -90.0) + faults)
+    sensing = Sensing(scenario)
+    sensing.run(1.5)
+    assert sensing.pose.reference is FrameReference.AIRCRAFT
+    sensing.run(8.0)  # t = 9.5 s: no scan for 7.5 s > lost_after
+    assert sensing.pose.reference is FrameReference.CHECKPOINT
+    sensing.run(3.0)
+    pose = sensing.pose
+    assert pose.reference is FrameReference.AIRCRAFT
+    truth_f = scenario.true_placement().pose_to_aircraft(sensing.robot.world.robot_pose)
+    assert pose.pose_f.distance_to(truth_f) < 0.05

@@ -19,8 +19,9 @@ thesis's point-cloud matching (seed lines 1053-1147, Algorithm 2.2):
   estimate says so (:class:`FrameReference`).
 
 The thesis stopped the robot for every matching; the runtime cost here is a few
-milliseconds for tracking and tens for a global step, so the robot keeps moving, and the
-estimate's ``confidence_f`` tells a guard when it must stop instead.
+milliseconds for tracking (in the tick) and ~10-50 ms for a global step (in a worker
+thread, applied a fixed ``global_latency`` after its scans), so the robot keeps moving,
+and the estimate's ``confidence_f`` tells a guard when it must stop instead.
 
 Latency: the scans are older than the filter (they arrive at 40 Hz, the filter runs on
 the 100 Hz wheels). The prior is taken back to the scans' time and the result carried
@@ -31,8 +32,10 @@ forward to now along the filter's own motion (:func:`moved_in_aircraft`), so a r
 from __future__ import annotations
 
 import math
+import weakref
 from collections import deque
 from collections.abc import Mapping
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -73,8 +76,22 @@ class RegistrationPolicy:
     """Consecutive gate refusals of good *global* results before the placement is reset."""
     min_covariance: tuple[float, float] = (0.01, math.radians(0.2))
     """Floor of the registration's 1-sigma (m, rad): the footprint is a model, not truth."""
-    history: float = 0.5
+    history: float = 1.0
     """Seconds of filter poses kept to carry a result from the scans' time to now."""
+    global_latency: float = 0.1
+    """A global registration runs in a worker thread beside the tick loop (it takes ~10 ms,
+    up to ~50 ms in clutter: too long for a 20 ms tick) and is applied this many seconds
+    after its scans, waiting for it if needed; a fixed latency keeps dry-runs
+    deterministic whatever the machine's speed."""
+
+
+@dataclass(frozen=True, slots=True)
+class _Job:
+    """A global registration running in the worker."""
+
+    future: Future[Registration | None]
+    scan_stamp: float
+    due: float
 
 
 class AircraftRegistrar:
@@ -108,6 +125,14 @@ class AircraftRegistrar:
         self.last: RegistrationRecord | None = None
         self.attempts = {"global": 0, "icp": 0}
         self.accepted = {"global": 0, "icp": 0}
+        self._job: _Job | None = None
+        self._pool: ThreadPoolExecutor | None = None
+
+    def _submit(self, *args: object, **kwargs: object) -> Future[Registration | None]:
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="registration")
+            weakref.finalize(self, self._pool.shutdown, wait=False)
+        return self._pool.submit(register, *args, **kwargs)  # type: ignore[arg-type]
 
     # -- bookkeeping ---------------------------------------------------------------------
     def record_pose(self, stamp: float, pose_a: Pose2) -> None:
@@ -137,17 +162,27 @@ class AircraftRegistrar:
         """Register if the policy says so; returns the attempt's record (None: none made)."""
         now = frame.stamp
         policy = self.policy
-        scans = {lid: s for lid, s in frame.scans.items() if lid in self.lasers}
-        stamps = tuple(s.stamp for s in scans.values())
-        if not scans or stamps == self._stamps:
-            return None
+        if self._job is not None:  # a global registration is running: apply it when due
+            if now < self._job.due:
+                return None
+            job, self._job = self._job, None
+            result = job.future.result()
+            pose_now_a = pose_filter.pose
+            delta = self._pose_at(job.scan_stamp, pose_now_a).inverse() @ pose_now_a
+            record = self._use(now, job.scan_stamp, "global", result, delta, pose_filter)
+            self.last = record
+            return record
         pose_now_f = pose_filter.pose_f
         if not self.in_view(pose_now_f):
             self._in_view_since = None
             return None
         if self._in_view_since is None:
             self._in_view_since = now
-        self._lose_if_stale(now)
+        self._lose_if_stale(now)  # also when the lasers are silent
+        scans = {lid: s for lid, s in frame.scans.items() if lid in self.lasers}
+        stamps = tuple(s.stamp for s in scans.values())
+        if not scans or stamps == self._stamps:
+            return None
         method = "icp" if self.registered else "global"
         due = self._last_track if self.registered else self._last_global
         period = policy.track_period if self.registered else policy.global_period
@@ -165,7 +200,7 @@ class AircraftRegistrar:
         if method == "global":
             self._last_global = now
             cov_f = pose_filter.covariance_f
-            result = register(
+            future = self._submit(
                 self.model,
                 points,
                 prior_f,
@@ -173,9 +208,10 @@ class AircraftRegistrar:
                 prior_sigma_theta=max(math.radians(1.0), math.sqrt(float(cov_f[2, 2]))),
                 sight_lines=SightLines.from_scans(scans, self.lasers),
             )
-        else:
-            self._last_track = now
-            result = refine(self.model, points, prior_f)
+            self._job = _Job(future, scan_stamp, scan_stamp + policy.global_latency)
+            return None
+        self._last_track = now
+        result = refine(self.model, points, prior_f)
         record = self._use(now, scan_stamp, method, result, delta, pose_filter)
         self.last = record
         return record
