@@ -152,3 +152,18 @@ def test_a_lost_registration_falls_back_to_the_last_checkpoint_frame_and_recover
     assert pose.reference is FrameReference.AIRCRAFT
     truth_f = scenario.true_placement().pose_to_aircraft(sensing.robot.world.robot_pose)
     assert pose.pose_f.distance_to(truth_f) < 0.05
+
+
+def test_a_confidence_drop_triggers_a_global_registration(tmp_path):
+    scenario = make_scenario(tmp_path, OFFSET + start(-9.0, -12.0, -90.0))
+    sensing = Sensing(scenario)
+    sensing.run(1.0)
+    registrar = sensing.localise.registrar
+    assert registrar.accepted["global"] == 1
+    pose_filter = sensing.localise.filter
+    # doubt where the aircraft is (GPS cannot help with that; only the lasers can)
+    pose_filter.reset_placement(pose_filter.pose_f, np.diag([0.3**2, 0.3**2, 0.05**2]))
+    assert pose_filter.confidence_f < registrar.policy.relocalise_confidence
+    sensing.run(1.5)
+    assert registrar.attempts["global"] == 2 and registrar.accepted["global"] == 2
+    assert sensing.pose.confidence_f > 0.9

@@ -4,9 +4,10 @@ The maths (footprint model, RANSAC on footprint correspondences, ICP) is in
 :mod:`behaviours.laws.registration`; this module is the policy around it, after the
 thesis's point-cloud matching (seed lines 1053-1147, Algorithm 2.2):
 
-* **global** registration (RANSAC then ICP) when the aircraft comes into view and
-  whenever the estimate is not registered (never, or lost); at most every
-  ``global_period`` s, so a failed attempt does not eat every tick;
+* **global** registration (RANSAC then ICP) when the aircraft comes into view, whenever
+  the estimate is not registered (never, or lost) and when the pose confidence in F
+  drops below ``relocalise_confidence``; at most every ``global_period`` s, so a failed
+  attempt does not eat every tick;
 * **tracking**: while registered, a cheap ICP refinement from the current estimate every
   ``track_period`` s, so the pose in F never drifts with the odometry;
 * a result is used only if its fit is good (inliers, rms, well conditioned) and the
@@ -70,6 +71,9 @@ class RegistrationPolicy:
     """Largest rms distance of the inliers to the footprint (m)."""
     lost_after: float = 6.0
     """Seconds in view without an accepted registration before the estimate is lost."""
+    relocalise_confidence: float = 0.5
+    """Below this ``confidence_f`` a registered estimate asks for a global registration
+    again (ICP tracking from a doubtful pose could lock onto the wrong face)."""
     gate: float = CHI2_999[3]
     """Mahalanobis gate of a registration in the pose filter."""
     reset_after: int = 3
@@ -179,6 +183,8 @@ class AircraftRegistrar:
         if self._in_view_since is None:
             self._in_view_since = now
         self._lose_if_stale(now)  # also when the lasers are silent
+        if self.registered and pose_filter.confidence_f < policy.relocalise_confidence:
+            self.registered = False  # the confidence dropped: match globally again
         scans = {lid: s for lid, s in frame.scans.items() if lid in self.lasers}
         stamps = tuple(s.stamp for s in scans.values())
         if not scans or stamps == self._stamps:
