@@ -197,6 +197,7 @@ def cmd_dry_run(args: argparse.Namespace) -> int:
             journal_path=journal,
             resume=args.resume,
             progress_out=sys.stderr if not args.quiet else None,
+            avoidance=args.avoidance,
         )
     except CompileError as exc:
         return _report(list(exc.problems))
@@ -309,6 +310,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="continue after the last checkpoint completed in OUT/journal.jsonl",
     )
     dry.add_argument("--quiet", action="store_true", help="no live progress line")
+    dry.add_argument(
+        "--avoidance",
+        action="store_true",
+        help="experimental (issue #6 in progress): spiral obstacle avoidance in the tree",
+    )
     dry.set_defaults(handler=cmd_dry_run)
 
     show = sub.add_parser(

@@ -39,6 +39,7 @@ from shapely.geometry import Polygon as ShapelyPolygon
 from shapely.ops import unary_union
 
 from behaviours.base import Controller, Guard, Node
+from behaviours.controllers.avoidance import AvoidanceSession, AvoidanceTrigger, AvoidObstacle
 from behaviours.controllers.inspection import InspectItems, SetProgress, StartMission
 from behaviours.controllers.motion import (
     CorrectCameraAngle,
@@ -68,6 +69,10 @@ from executive.core.problems import InvalidInputError, Problem, SourceLocation
 from executive.core.records import VelocityCommand
 
 Status = py_trees.common.Status
+
+AVOIDANCE_PATH_MARGIN = 0.3
+"""An obstacle within half the robot's width plus r_ES plus this (m) of the straight way
+to the goal is on the way: passing it closer would trip the e-stop."""
 
 NEAR_AIRFRAME = 3.0
 """Within this distance (m) of the aircraft the inspection speed applies."""
@@ -115,6 +120,10 @@ class CompileOptions:
     """Initial pose estimate in A (default: the charging station)."""
     resume: MissionProgress | None = None
     """Progress journaled by an earlier run: completed checkpoints are not visited again."""
+    avoidance: bool = False
+    """Avoid obstacles on the way with the spiral controller (issue #6, in progress: off by
+    default until it is tuned in sim2d; the e-stop and the safety layer's slowdown handle
+    obstacles meanwhile)."""
     register_aircraft: bool = True
     """Register the aircraft from the laser returns (False: trust the nominal placement)."""
 
@@ -156,6 +165,10 @@ class _Builder:
         shapes = [ShapelyPolygon(self.placement.to_airport_xy(g.exterior.coords)) for g in airframe]
         self.airframe = unary_union(shapes)
         shapely.prepare(self.airframe)
+        m = mission
+        self.registers = bool(
+            options.register_aircraft and m.aircraft.footprint and m.platform.lasers
+        )
         self.inspection_unit = next(
             (c for c in platform.cameras.values() if c.kind is CameraKind.PTZ), None
         )
@@ -206,9 +219,10 @@ class _Builder:
                             HoldStill("hold: relocalise"),
                         )
                     ]
-                    if goal.frame is Frame.AIRCRAFT
+                    if goal.frame is Frame.AIRCRAFT and self.registers
                     else []
                 ),
+                *self.avoidance(label, goal),
                 GuardedBranch(
                     f"reached {label}",
                     Reached(goal, tolerance[0], tolerance[1] if use_heading else None),
@@ -223,12 +237,26 @@ class _Builder:
             children=[NotTrapped(goal, self.options.trapped_after), guards],
         )
 
+    def avoidance(self, label: str, goal: Goal) -> list[py_trees.behaviour.Behaviour]:
+        """The obstacle-avoidance branch of a navigation (ARCHITECTURE §5), if enabled."""
+        m = self.mission
+        if not (self.options.avoidance and m.platform.lasers):
+            return []
+        session = AvoidanceSession()
+        margin = 0.5 * m.platform.width + m.safety.r_es + AVOIDANCE_PATH_MARGIN
+        return [
+            GuardedBranch(
+                f"avoid {label}",
+                AvoidanceTrigger(goal, session, m.safety.r_oa_trigger, margin),
+                AvoidObstacle(goal, session, m.platform, self.period),
+            )
+        ]
+
     def registrar(self) -> AircraftRegistrar | None:
         """The laser registration of the aircraft, when asked for and possible."""
-        m = self.mission
-        if not (self.options.register_aircraft and m.aircraft.footprint and m.platform.lasers):
+        if not self.registers:
             return None
-        return AircraftRegistrar(m.aircraft, dict(m.platform.lasers))
+        return AircraftRegistrar(self.mission.aircraft, dict(self.mission.platform.lasers))
 
     # -- phases -------------------------------------------------------------------------------
     def approach(self) -> py_trees.behaviour.Behaviour:

@@ -392,6 +392,7 @@ def dry_run(
     progress_out: TextIO | None = None,
     max_time: float | None = None,
     robot: SimRobot | None = None,
+    avoidance: bool = False,
 ) -> DryRun:
     """Run the scenario's mission with the executive in sim2d and judge it."""
     mission = scenario.mission
@@ -403,7 +404,9 @@ def dry_run(
             start = Pose2(*pose)
             scenario = _with_start(scenario, start)
     robot = robot or SimRobot(scenario)
-    options = CompileOptions(rate_hz=rate_hz, start=start or scenario.start, resume=resumed)
+    options = CompileOptions(
+        rate_hz=rate_hz, start=start or scenario.start, resume=resumed, avoidance=avoidance
+    )
     compiled = compile_mission(mission, options)
     safety = SafetyLayer(
         mission,

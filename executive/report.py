@@ -165,6 +165,7 @@ KINDS = (
     ("stop", "stop"),
     ("operator", "operator control"),
     ("hold: relocalise", "relocalise (registration)"),
+    ("spiral", "spiral avoidance"),
 )
 
 

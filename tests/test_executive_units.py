@@ -9,12 +9,17 @@ import pytest
 
 from behaviours.controllers.motion import CorrectCameraAngle
 from behaviours.goals import Goal
-from behaviours.guards.conditions import NotTrapped, ObstacleTrigger, Reached
+from behaviours.guards.conditions import (
+    NotTrapped,
+    ObstacleTrigger,
+    PoseNotGoodEnough,
+    Reached,
+)
 from behaviours.keys import COMMAND, OBSTACLES, POSE, ItemResult, MissionProgress
 from executive.cli import main
 from executive.core.frames import Pose2
 from executive.core.loader import load_mission
-from executive.core.records import Obstacles, PoseEstimate
+from executive.core.records import FrameReference, Obstacles, PoseEstimate
 from executive.dryrun import dry_run
 from executive.journal import Journal, read_journal
 from tests.conftest import MISSIONS
@@ -157,3 +162,33 @@ def test_dry_run_exit_codes(tmp_path, capsys):
     report = json.loads((tmp_path / "c" / "metrics.json").read_text())
     assert report["outcome"] == "timeout" and report["safety_stops"][0]["kind"] == "estop-latched"
     capsys.readouterr()
+
+
+FAIL, HOLD = py_trees.common.Status.FAILURE, py_trees.common.Status.SUCCESS
+
+
+def _pose_with(confidence_f: float, reference, stamp: float):
+    pose = Pose2(0.0, 0.0, 0.0)
+    return PoseEstimate(
+        stamp, pose, np.eye(3), pose, 1.0, confidence_f=confidence_f, reference=reference
+    )
+
+
+def test_pose_not_good_enough_holds_at_most_max_hold_and_never_before_registration():
+    guard = PoseNotGoodEnough(low=0.3, high=0.6, max_hold=5.0, cooldown=20.0)
+    bb = py_trees.blackboard.Client(name="t-relocalise")
+    bb.register_key(key=POSE.name, access=py_trees.common.Access.WRITE)
+
+    def tick(confidence, reference, t):
+        bb.set(POSE.name, _pose_with(confidence, reference, t), overwrite=True)
+        guard.tick_once()
+        return guard.status
+
+    assert tick(0.0, FrameReference.NOMINAL, 0.0) == FAIL  # not registered yet
+    assert tick(0.1, FrameReference.AIRCRAFT, 1.0) == HOLD  # hold
+    assert tick(0.5, FrameReference.AIRCRAFT, 2.0) == HOLD  # hysteresis
+    assert tick(0.1, FrameReference.CHECKPOINT, 6.5) == FAIL  # held 5.5 s: go on
+    assert tick(0.1, FrameReference.CHECKPOINT, 20.0) == FAIL  # resting
+    assert tick(0.1, FrameReference.CHECKPOINT, 27.0) == HOLD  # rest over
+    assert tick(0.7, FrameReference.AIRCRAFT, 28.0) == FAIL  # re-registered
+    assert "confidence_F" in guard.feedback_message

@@ -15,7 +15,13 @@ from behaviours.goals import Goal
 from behaviours.keys import OBSTACLES, OPERATOR, POSE, SENSOR_FRAME
 from behaviours.laws.estop import EStopLatch
 from executive.core.frames import wrap_angle
-from executive.core.records import Obstacles, OperatorRequests, PoseEstimate, SensorFrame
+from executive.core.records import (
+    FrameReference,
+    Obstacles,
+    OperatorRequests,
+    PoseEstimate,
+    SensorFrame,
+)
 
 Status = py_trees.common.Status
 
@@ -73,6 +79,9 @@ class PoseNotGoodEnough(Guard):
     (hysteresis). A hold lasts at most ``max_hold`` s: if the registration cannot help
     (the aircraft hidden by vehicles), the robot goes on with the estimate it has (the
     last-checkpoint frame) and the guard rests for ``cooldown`` s, so it never deadlocks.
+    Before the first registration (reference ``nominal``) it never holds: the global
+    registration runs while moving, and holding cannot help an aircraft the lasers cannot
+    register (e.g. a lone target board).
     """
 
     reads = (POSE,)
@@ -103,7 +112,11 @@ class PoseNotGoodEnough(Guard):
             elif now - self._since > self.max_hold:
                 self.engaged = False
                 self._rest_until = now + self.cooldown
-        elif confidence < self.low and now >= self._rest_until:
+        elif (
+            confidence < self.low
+            and now >= self._rest_until
+            and pose.reference is not FrameReference.NOMINAL
+        ):
             self.engaged, self._since = True, now
         where = f"{pose.reference}{' ' + pose.anchor if pose.anchor else ''}"
         self.feedback_message = f"confidence_F {confidence:.2f} (low {self.low:.2f}), {where}"

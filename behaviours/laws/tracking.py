@@ -393,7 +393,10 @@ class ObstacleTracker:
         block = np.zeros((4, 4))
         block[:2, :2] = block[2:, 2:] = rot
         covariance = block @ self.covariance[out] @ block.T
-        size = self.size[out]
+        # a circle track's fitted radius, else (never fitted whole) its enclosing radius;
+        # the size is at least the fitted radius (a partial arc's enclosing circle is not)
+        radius = np.where(self.radius[out] > 0.0, self.radius[out], self.size[out])
+        size = np.maximum(self.size[out], self.radius[out])
         stale = self.seen[out] < t
         clearance = np.where(
             stale,
@@ -410,7 +413,7 @@ class ObstacleTracker:
             for k, (x, y), r, e in zip(
                 kind.tolist(),
                 position.tolist(),
-                self.radius[out].tolist(),
+                radius.tolist(),
                 ends.tolist(),
                 strict=True,
             )
