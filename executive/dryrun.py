@@ -20,6 +20,7 @@ import numpy as np
 import shapely
 from shapely.geometry import Polygon as ShapelyPolygon
 
+from behaviours.controllers.avoidance import obstacle_in_airport
 from behaviours.keys import OBSTACLES, POSE, PROGRESS, MissionProgress
 from executive.compiler import CompileOptions, compile_mission
 from executive.core.frames import AircraftPlacement, Pose2, wrap_angle
@@ -305,13 +306,11 @@ class _Watcher:
             (m.agent.id, m.agent.x, m.agent.y, m.agent.vx, m.agent.vy)
             for m in self.robot.world.moving
         ]
-        c, s = math.cos(true.theta), math.sin(true.theta)
         for track in obstacles.tracks:
             if track.kind == "zone":
                 continue
-            x, y = true.apply(track.position)
-            vx = c * track.velocity[0] - s * track.velocity[1]
-            vy = s * track.velocity[0] + c * track.velocity[1]
+            in_a = obstacle_in_airport(track, true)  # placed with the true robot pose
+            (x, y), (vx, vy) = in_a.position, in_a.velocity
             sample = TrackSample(
                 round(t, 3),
                 track.id,

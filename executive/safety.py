@@ -97,7 +97,7 @@ from shapely.geometry.base import BaseGeometry
 
 from behaviours.laws import estop
 from behaviours.laws.estop import EStopLatch
-from executive.core.frames import AircraftPlacement, FloatArray, wrap_angle
+from executive.core.frames import AircraftPlacement, FloatArray
 from executive.core.model import Circle, ForbiddenZone, Frame, Mission
 from executive.core.records import (
     Obstacles,
@@ -508,10 +508,7 @@ class SafetyLayer:
         cost every tick for nothing (the geofence margin is decimetres).
         """
         old = self._placement
-        if old is not None and (
-            math.hypot(placement.x - old.x, placement.y - old.y) < tolerance[0]
-            and abs(wrap_angle(placement.heading - old.heading)) < tolerance[1]
-        ):
+        if old is not None and not placement.differs_from(old, *tolerance):
             return
         self._placement = placement
         self._moving = _ZoneSet(self._aircraft_zones, placement)

@@ -720,7 +720,11 @@ def test_doctype_refused_before_the_parser_uses_it(tmp_path, secret, template, e
     assert [p.code for p in problems] == ["doctype"], _listing(problems)
 
 
-@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="needs a named pipe")
+@pytest.mark.skipif(
+    not hasattr(os, "mkfifo"),
+    reason="the proof that no external entity is opened reads through a named pipe "
+    "(os.mkfifo), which this OS lacks",
+)
 @pytest.mark.parametrize(
     "encoding",
     [

@@ -13,6 +13,8 @@ from behaviours.sensing.obstacles import SenseObstacles
 from behaviours.sensing.registration import AircraftRegistrar
 from executive.core.frames import wrap_angle
 from executive.core.records import FrameReference, VelocityCommand
+from executive.dryrun import dry_run
+from executive.report import tracking_metrics
 from sim2d.robot import SimRobot
 from tests.sim2d_helpers import make_scenario, start
 
@@ -167,3 +169,11 @@ def test_a_confidence_drop_triggers_a_global_registration(tmp_path):
     sensing.run(1.5)
     assert registrar.attempts["global"] == 2 and registrar.accepted["global"] == 2
     assert sensing.pose.confidence_f > 0.9
+
+
+def test_the_report_measures_tracking_against_the_movers_truth(tmp_path):
+    run = dry_run(make_scenario(tmp_path, WALKER), max_time=20.0)
+    report = tracking_metrics(run)
+    assert report["movers_tracked"] == ["walker"]
+    assert report["position_error_m"]["p95"] < 0.05
+    assert report["velocity_error_mps"]["p95"] < 0.15

@@ -71,8 +71,12 @@ def box_f(x, y, heading_deg, length, width):
     """Corners in F of a length x width box centred at (x, y)."""
     h = math.radians(heading_deg)
     u, v = np.array([math.cos(h), math.sin(h)]), np.array([-math.sin(h), math.cos(h)])
-    return np.array([(x, y) + sx * length / 2 * u + sy * width / 2 * v for sx, sy in
-                     ((1, 1), (-1, 1), (-1, -1), (1, -1))])  # fmt: skip
+    return np.array(
+        [
+            (x, y) + sx * length / 2 * u + sy * width / 2 * v
+            for sx, sy in ((1, 1), (-1, 1), (-1, -1), (1, -1))
+        ]
+    )
 
 
 def cast(mission, pose_f, *, keep=None, people=(), boxes=(), sigma=0.0, seed=0):
@@ -97,8 +101,9 @@ def cast(mission, pose_f, *, keep=None, people=(), boxes=(), sigma=0.0, seed=0):
     pose_a = PLACEMENT.pose_to_airport(pose_f)
     rng = np.random.default_rng(seed)
     lasers = mission.platform.lasers
-    scans = {lid: LaserSensor(spec, sigma, rng).scan(scene, pose_a, 0.0) for lid, spec in
-             lasers.items()}  # fmt: skip
+    scans = {
+        lid: LaserSensor(spec, sigma, rng).scan(scene, pose_a, 0.0) for lid, spec in lasers.items()
+    }
     return points_from_scans(scans, lasers), SightLines.from_scans(scans, lasers)
 
 
@@ -217,8 +222,9 @@ A320_POSES = [
 SIGMA_THETA = math.radians(5.0)
 
 
-def register_synthetic(model, cast_result, prior, sigma_xy=1.0, sigma_theta=SIGMA_THETA, *,
-                       free_space=True):  # fmt: skip
+def register_synthetic(
+    model, cast_result, prior, sigma_xy=1.0, sigma_theta=SIGMA_THETA, *, free_space=True
+):
     """``free_space=False`` when elements were left out of the scene (not hidden behind
     something): the beams pass where they stand, which the free-space test objects to."""
     points, lines = cast_result
@@ -360,8 +366,13 @@ def test_covariance_is_in_the_aircraft_frame_and_consistent(a320, models):
     for seed in range(25):
         points, _ = cast(a320, pose, keep=keep, sigma=0.01, seed=seed)
         reg = refine(model, points, pose)
-        errors.append((reg.pose_f.x - pose.x, reg.pose_f.y - pose.y,
-                       wrap_angle(reg.pose_f.theta - pose.theta)))  # fmt: skip
+        errors.append(
+            (
+                reg.pose_f.x - pose.x,
+                reg.pose_f.y - pose.y,
+                wrap_angle(reg.pose_f.theta - pose.theta),
+            )
+        )
         covs.append(reg.covariance)
     errors, cov = np.array(errors), np.mean(covs, axis=0)
     assert np.allclose(cov, cov.T) and np.all(np.linalg.eigvalsh(cov) > 0)
@@ -427,10 +438,12 @@ def test_placement_covariance_is_the_first_order_propagation():
     xa = np.array([pose_a.x, pose_a.y, pose_a.theta])
     xf = np.array([pose_f.x, pose_f.y, pose_f.theta])
     eps = 1e-6
-    j_a = np.column_stack([(params(xa + eps * e, xf) - params(xa - eps * e, xf)) / (2 * eps)
-                           for e in np.eye(3)])  # fmt: skip
-    j_f = np.column_stack([(params(xa, xf + eps * e) - params(xa, xf - eps * e)) / (2 * eps)
-                           for e in np.eye(3)])  # fmt: skip
+    j_a = np.column_stack(
+        [(params(xa + eps * e, xf) - params(xa - eps * e, xf)) / (2 * eps) for e in np.eye(3)]
+    )
+    j_f = np.column_stack(
+        [(params(xa, xf + eps * e) - params(xa, xf - eps * e)) / (2 * eps) for e in np.eye(3)]
+    )
     expected = j_a @ cov_a @ j_a.T + j_f @ cov_f @ j_f.T
     got = placement_covariance(pose_a, cov_a, fake_registration(pose_f, cov_f))
     assert np.allclose(got, expected, atol=1e-9)
@@ -541,8 +554,9 @@ def test_sim2d_registration_within_5cm_and_half_a_degree(
         # the airport <- aircraft transform it implies is the scenario's true one
         placement = placement_from_registration(truth_a, reg, mission.aircraft.origin_height)
         nominal = mission.nominal_placement()
-        assert placement.heading == pytest.approx(nominal.heading + math.radians(offset[2]),
-                                                  abs=HEADING_TOL)  # fmt: skip
+        assert placement.heading == pytest.approx(
+            nominal.heading + math.radians(offset[2]), abs=HEADING_TOL
+        )
         nose = placement.to_airport_xy((0.0, 0.0))
         assert math.hypot(nose[0] - nominal.x - offset[0], nose[1] - nominal.y - offset[1]) < (
             POSITION_TOL + math.hypot(*spot[:2]) * HEADING_TOL

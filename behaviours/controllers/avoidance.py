@@ -17,7 +17,7 @@ every leg clear of them and the safety layer's geofence is the hard limit.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import py_trees
@@ -29,7 +29,6 @@ from behaviours.laws.rate_limit import RateLimiter, RateLimits
 from behaviours.laws.spiral import (
     SpiralAvoidance,
     SpiralObstacle,
-    SpiralOutput,
     SpiralParams,
     path_blocked,
 )
@@ -67,8 +66,6 @@ class AvoidanceSession:
     missing_since: float | None = None
     released: bool = False
     reason: str = ""
-    last: SpiralOutput | None = None
-    history: list[tuple[float, SpiralOutput]] = field(default_factory=list)
 
 
 class AvoidanceTrigger(Guard):
@@ -211,8 +208,6 @@ class AvoidObstacle(Controller):
             self.feedback_message = f"VO: obstacle {track.id} at {obstacle.speed:.1f} m/s"
         else:
             out = self.law.command(pose.pose_a, target_xy, obstacle, self.period)
-            session.last = out
-            session.history.append((pose.stamp, out))
             if out.released:
                 session.released, session.reason = True, out.reason
             v, omega = out.v, out.omega

@@ -91,7 +91,13 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike
 
-from executive.core.frames import AircraftPlacement, FloatArray, Pose2, wrap_angle
+from executive.core.frames import (
+    AircraftPlacement,
+    FloatArray,
+    Pose2,
+    mirror_covariance,
+    wrap_angle,
+)
 from executive.core.records import (
     FrameReference,
     GpsFix,
@@ -104,8 +110,12 @@ from executive.core.records import (
 N_STATES = 9
 """(x, y, theta, b, k, c, p_x, p_y, p_phi)."""
 
-_MIRROR = np.diag([1.0, -1.0, -1.0])
-"""(x, y, heading) in F <-> in the mirrored ground frame G (an involution)."""
+_STATE_FIELDS = ("_x", "_y", "_theta", "_b", "_k", "_c", "_px", "_py", "_pphi")
+"""The attributes holding the state, in :attr:`PoseFilter.state` order."""
+
+_STATE_FIELDS = ("_x", "_y", "_theta", "_b", "_k", "_c", "_px", "_py", "_pphi")
+"""The attributes holding the state, in :attr:`PoseFilter.state` order."""
+
 
 CHI2_999 = {1: 10.828, 2: 13.816, 3: 16.266}
 """Chi-square 99.9% quantiles by degrees of freedom (Mahalanobis gates)."""
@@ -257,19 +267,7 @@ class PoseFilter:
     @property
     def state(self) -> FloatArray:
         """(x, y, theta, b, k, c, p_x, p_y, p_phi)."""
-        return np.array(
-            [
-                self._x,
-                self._y,
-                self._theta,
-                self._b,
-                self._k,
-                self._c,
-                self._px,
-                self._py,
-                self._pphi,
-            ]
-        )
+        return np.array([getattr(self, name) for name in _STATE_FIELDS])
 
     @property
     def state_covariance(self) -> FloatArray:
@@ -312,14 +310,12 @@ class PoseFilter:
         """3x3 covariance of :attr:`pose_f` (x_F, y_F, heading_F): robot and placement."""
         _, h = self._relative()
         cov_g = h @ self._p @ h.T
-        return _MIRROR @ cov_g @ _MIRROR
+        return mirror_covariance(cov_g)
 
     @property
     def confidence_f(self) -> float:
         """:attr:`confidence` of the pose in F (same mapping, on :attr:`covariance_f`)."""
-        p = self.covariance_f
-        var = max(p[0, 0] + p[1, 1] + self.confidence_lever**2 * p[2, 2], 0.0)
-        return math.exp(-var / self.confidence_scale**2)
+        return self._confidence_of(self.covariance_f)
 
     @property
     def gyro_bias(self) -> float:
@@ -341,9 +337,10 @@ class PoseFilter:
     @property
     def confidence(self) -> float:
         """exp(-(sigma_eff / confidence_scale)^2), see the module docstring."""
-        p = self._p
-        lever2 = self.confidence_lever**2
-        var = max(p[0, 0] + p[1, 1] + lever2 * p[2, 2], 0.0)
+        return self._confidence_of(self._p)
+
+    def _confidence_of(self, p: FloatArray) -> float:
+        var = max(p[0, 0] + p[1, 1] + self.confidence_lever**2 * p[2, 2], 0.0)
         return math.exp(-var / self.confidence_scale**2)
 
     def estimate(
@@ -357,6 +354,7 @@ class PoseFilter:
         """The blackboard record: the pose in A and, through the estimated placement, in F."""
         pose = self.pose
         placement = self.placement
+        covariance_f = self.covariance_f
         return PoseEstimate(
             stamp=stamp,
             pose_a=pose,
@@ -365,8 +363,8 @@ class PoseFilter:
             confidence=self.confidence,
             sources=sources,
             placement=placement,
-            covariance_f=self.covariance_f,
-            confidence_f=self.confidence_f,
+            covariance_f=covariance_f,
+            confidence_f=self._confidence_of(covariance_f),
             reference=reference,
             anchor=anchor,
             registration=registration,
@@ -545,7 +543,7 @@ class PoseFilter:
             math.isfinite(pose_f.x) and math.isfinite(pose_f.y) and math.isfinite(pose_f.theta)
         ):
             return False
-        r = _MIRROR @ (0.5 * (r_f + r_f.T)) @ _MIRROR
+        r = mirror_covariance(0.5 * (r_f + r_f.T))
         if not _is_psd3(r):
             return False
         meas = np.array([pose_f.x, -pose_f.y, wrap_angle(-pose_f.theta)])
@@ -602,7 +600,7 @@ class PoseFilter:
         hr = h[:, :3]  # dz/d(robot pose)
         hp = h[:, 6:]  # dz/d(placement)
         hp_inv = np.linalg.inv(hp)
-        cov_g = _MIRROR @ (0.5 * (r_f + r_f.T)) @ _MIRROR
+        cov_g = mirror_covariance(0.5 * (r_f + r_f.T))
         p_rr = self._p[:3, :3]
         j_r = -hp_inv @ hr
         cov_p = j_r @ p_rr @ j_r.T + hp_inv @ cov_g @ hp_inv.T
@@ -615,17 +613,8 @@ class PoseFilter:
         self._p[6:, :3] = cross.T
 
     def _set_state(self, x: FloatArray) -> None:
-        (
-            self._x,
-            self._y,
-            self._theta,
-            self._b,
-            self._k,
-            self._c,
-            self._px,
-            self._py,
-            self._pphi,
-        ) = (float(v) for v in x)
+        for name, value in zip(_STATE_FIELDS, x.tolist(), strict=True):
+            setattr(self, name, value)
 
     # -- the Kalman correction ----------------------------------------------------------
     def _correct_block(

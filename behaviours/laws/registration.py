@@ -90,14 +90,21 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
 from behaviours.laws.obstacles import scan_to_robot
-from executive.core.frames import AircraftPlacement, FloatArray, Pose2, mirror_pose, wrap_angle
+from executive.core.frames import (
+    AircraftPlacement,
+    FloatArray,
+    Pose2,
+    mirror_covariance,
+    mirror_pose,
+    wrap_angle,
+)
 from executive.core.model import Aircraft, Circle, LaserSpec, Polygon
 from executive.core.records import LaserScan
 
 IntArray = NDArray[np.intp]
 BoolArray = NDArray[np.bool_]
 
-MIRROR = np.diag([1.0, -1.0, -1.0])
+
 """(x, y, heading) in F <-> in the proper ground frame G; its own inverse."""
 
 MIN_CROSSING = 0.3
@@ -735,7 +742,7 @@ def _registration(
     counts = np.bincount(model.sample_element[fit.nearest[inliers]], minlength=len(model.elements))
     return Registration(
         pose_f=mirror_pose(fit.pose_g),
-        covariance=MIRROR @ cov_g @ MIRROR,
+        covariance=mirror_covariance(cov_g),
         rms=float(np.sqrt(np.mean(fit.residuals[inliers] ** 2))) if n_in else math.inf,
         inlier_fraction=n_in / n_points if n_points else 0.0,
         n_inliers=n_in,

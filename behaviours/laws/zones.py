@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from behaviours.laws.obstacles import footprint_distances
-from executive.core.frames import AircraftPlacement, FloatArray, Pose2, wrap_angle
+from executive.core.frames import AircraftPlacement, FloatArray, Pose2
 from executive.core.model import Circle, ForbiddenZone, Frame
 
 
@@ -94,12 +94,7 @@ class VirtualWalls:
         """Zone points in A; recomputed when the placement moved by 1 cm or 0.05 deg (the
         pose filter nudges it on every GPS fix)."""
         old = self._placement
-        if (
-            old is not None
-            and self._airport
-            and math.hypot(placement.x - old.x, placement.y - old.y) < 0.01
-            and abs(wrap_angle(placement.heading - old.heading)) < math.radians(0.05)
-        ):
+        if old is not None and self._airport and not placement.differs_from(old):
             return
         self._placement = placement
         self._airport, self._airport_vertices = [], []

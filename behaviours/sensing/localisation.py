@@ -85,7 +85,7 @@ class Localise(Node):
             frame.stamp, tuple(sources), reference, anchor, registration=self._last
         )
         self.write(POSE, estimate)
-        cov_f = self.filter.covariance_f
+        cov_f = estimate.covariance_f
         sigma = math.sqrt(max(float(cov_f[0, 0] + cov_f[1, 1]), 0.0))
         self.feedback_message = (
             f"sigma_F {sigma:.3f} m, confidence_F {estimate.confidence_f:.2f}, {reference}"

@@ -185,6 +185,17 @@ class AircraftPlacement:
         x, y = self.to_aircraft_xy((pose_a.x, pose_a.y))
         return Pose2(float(x), float(y), wrap_angle(self.x_axis_heading - pose_a.theta))
 
+    def differs_from(
+        self, other: AircraftPlacement, distance: float = 0.01, angle: float = math.radians(0.05)
+    ) -> bool:
+        """Whether the nose moved by ``distance`` (m) or more, or the heading turned by
+        ``angle`` (rad) or more: for caches of shapes placed with the aircraft, which the
+        pose filter nudges on every GPS fix."""
+        return (
+            math.hypot(self.x - other.x, self.y - other.y) >= distance
+            or abs(wrap_angle(self.heading - other.heading)) >= angle
+        )
+
     def height_to_z(self, height: float) -> float:
         """Height above the ground -> z_F (z_F points down from the nose tip)."""
         return self.origin_height - height
@@ -198,6 +209,15 @@ def mirror_pose(pose: Pose2) -> Pose2:
     after a motion ``delta`` expressed in R.
     """
     return Pose2(pose.x, -pose.y, wrap_angle(-pose.theta))
+
+
+_MIRROR_SIGNS = np.outer((1.0, -1.0, -1.0), (1.0, -1.0, -1.0))
+"""D C D for D = diag(1, -1, -1), elementwise."""
+
+
+def mirror_covariance(cov: ArrayLike) -> FloatArray:
+    """A 3x3 (x, y, heading) covariance in F <-> the same in G (see :func:`mirror_pose`)."""
+    return np.asarray(cov, dtype=float) * _MIRROR_SIGNS
 
 
 def moved_in_aircraft(pose_f: Pose2, delta_r: Pose2) -> Pose2:
