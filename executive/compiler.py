@@ -39,7 +39,12 @@ from shapely.geometry import Polygon as ShapelyPolygon
 from shapely.ops import unary_union
 
 from behaviours.base import Controller, Guard, Node
-from behaviours.controllers.avoidance import AvoidanceSession, AvoidanceTrigger, AvoidObstacle
+from behaviours.controllers.avoidance import (
+    AvoidanceSession,
+    AvoidanceTrigger,
+    AvoiderFactory,
+    AvoidObstacle,
+)
 from behaviours.controllers.inspection import InspectItems, SetProgress, StartMission
 from behaviours.controllers.motion import (
     CorrectCameraAngle,
@@ -124,6 +129,8 @@ class CompileOptions:
     """Avoid obstacles on the way with the spiral controller (issue #6, in progress: off by
     default until it is tuned in sim2d; the e-stop and the safety layer's slowdown handle
     obstacles meanwhile)."""
+    avoider: AvoiderFactory | None = None
+    """Builds the avoidance controller (default :class:`AvoidObstacle`, the spiral)."""
     register_aircraft: bool = True
     """Register the aircraft from the laser returns (False: trust the nominal placement)."""
 
@@ -248,7 +255,7 @@ class _Builder:
             GuardedBranch(
                 f"avoid {label}",
                 AvoidanceTrigger(goal, session, m.safety.r_oa_trigger, margin),
-                AvoidObstacle(goal, session, m.platform, self.period),
+                (self.options.avoider or AvoidObstacle)(goal, session, m.platform, self.period),
             )
         ]
 

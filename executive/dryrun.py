@@ -20,7 +20,7 @@ import numpy as np
 import shapely
 from shapely.geometry import Polygon as ShapelyPolygon
 
-from behaviours.controllers.avoidance import obstacle_in_airport
+from behaviours.controllers.avoidance import AvoiderFactory, obstacle_in_airport
 from behaviours.keys import OBSTACLES, POSE, PROGRESS, MissionProgress
 from executive.compiler import CompileOptions, compile_mission
 from executive.core.frames import AircraftPlacement, Pose2, wrap_angle
@@ -392,6 +392,7 @@ def dry_run(
     max_time: float | None = None,
     robot: SimRobot | None = None,
     avoidance: bool = False,
+    avoider: AvoiderFactory | None = None,
 ) -> DryRun:
     """Run the scenario's mission with the executive in sim2d and judge it."""
     mission = scenario.mission
@@ -404,7 +405,11 @@ def dry_run(
             scenario = _with_start(scenario, start)
     robot = robot or SimRobot(scenario)
     options = CompileOptions(
-        rate_hz=rate_hz, start=start or scenario.start, resume=resumed, avoidance=avoidance
+        rate_hz=rate_hz,
+        start=start or scenario.start,
+        resume=resumed,
+        avoidance=avoidance,
+        avoider=avoider,
     )
     compiled = compile_mission(mission, options)
     safety = SafetyLayer(

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 import py_trees
@@ -66,6 +67,18 @@ class AvoidanceSession:
     missing_since: float | None = None
     released: bool = False
     reason: str = ""
+
+
+class AvoiderFactory(Protocol):
+    """Builds the avoidance controller of one navigation (the compiler's plug-in point).
+
+    :class:`AvoidObstacle` is the shipped one; ``benchmarks/dwa.py`` plugs a
+    dynamic-window baseline in through :attr:`executive.compiler.CompileOptions.avoider`.
+    """
+
+    def __call__(
+        self, goal: Goal, session: AvoidanceSession, platform: Platform, period: float
+    ) -> Controller: ...
 
 
 class AvoidanceTrigger(Guard):
