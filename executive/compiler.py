@@ -40,10 +40,14 @@ from shapely.ops import unary_union
 
 from behaviours.base import Controller, Guard, Node
 from behaviours.controllers.avoidance import (
-    AvoidanceSession,
+    DODGE,
+    SPIRAL,
+    AvoidanceParams,
+    AvoidancePolicy,
     AvoidanceTrigger,
     AvoiderFactory,
     AvoidObstacle,
+    DodgeObstacle,
 )
 from behaviours.controllers.inspection import InspectItems, SetProgress, StartMission
 from behaviours.controllers.motion import (
@@ -142,6 +146,7 @@ class CompiledMission:
     placement: AircraftPlacement
     warnings: list[Problem] = field(default_factory=list)
     goto_nodes: list[GoToGoalController] = field(default_factory=list)
+    avoidance_policies: list[AvoidancePolicy] = field(default_factory=list)
 
 
 def _warn(where: SourceLocation, code: str, message: str) -> Problem:
@@ -157,6 +162,7 @@ class _Builder:
         self.errors: list[Problem] = []
         self.warnings: list[Problem] = []
         self.goto_nodes: list[GoToGoalController] = []
+        self.avoidance_policies: list[AvoidancePolicy] = []
         nav = mission.navigation
         platform = mission.platform
         self.checkpoint_tolerance = (
@@ -245,18 +251,20 @@ class _Builder:
         )
 
     def avoidance(self, label: str, goal: Goal) -> list[py_trees.behaviour.Behaviour]:
-        """The obstacle-avoidance branch of a navigation (ARCHITECTURE §5), if enabled."""
+        """The obstacle-avoidance branches of a navigation (ARCHITECTURE §5), if enabled:
+        velocity obstacles for fast obstacles, then the spiral; one policy decides."""
         m = self.mission
         if not (self.options.avoidance and m.platform.lasers):
             return []
-        session = AvoidanceSession()
         margin = 0.5 * m.platform.width + m.safety.r_es + AVOIDANCE_PATH_MARGIN
+        policy = AvoidancePolicy(goal, AvoidanceParams(r_oa=m.safety.r_oa_trigger, margin=margin))
+        self.avoidance_policies.append(policy)
+        session, make = policy.session, self.options.avoider
+        dodge = (make or DodgeObstacle)(goal, session, m.platform, self.period)
+        spiral = (make or AvoidObstacle)(goal, session, m.platform, self.period)
         return [
-            GuardedBranch(
-                f"avoid {label}",
-                AvoidanceTrigger(goal, session, m.safety.r_oa_trigger, margin),
-                (self.options.avoider or AvoidObstacle)(goal, session, m.platform, self.period),
-            )
+            GuardedBranch(f"dodge {label}", AvoidanceTrigger(policy, DODGE), dodge),
+            GuardedBranch(f"avoid {label}", AvoidanceTrigger(policy, SPIRAL), spiral),
         ]
 
     def registrar(self) -> AircraftRegistrar | None:
@@ -403,7 +411,14 @@ def compile_mission(mission: Mission, options: CompileOptions | None = None) -> 
     ]
     if errors:
         raise CompileError(errors)
-    return CompiledMission(mission, root, builder.placement, builder.warnings, builder.goto_nodes)
+    return CompiledMission(
+        mission,
+        root,
+        builder.placement,
+        builder.warnings,
+        builder.goto_nodes,
+        builder.avoidance_policies,
+    )
 
 
 # -- the tree's own checks --------------------------------------------------------------------

@@ -11,16 +11,22 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TextIO
 
 import numpy as np
+import py_trees
 import shapely
 from shapely.geometry import Polygon as ShapelyPolygon
 
-from behaviours.controllers.avoidance import AvoiderFactory, obstacle_in_airport
+from behaviours.controllers.avoidance import (
+    AvoiderFactory,
+    AvoidObstacle,
+    DodgeObstacle,
+    obstacle_in_airport,
+)
 from behaviours.keys import OBSTACLES, POSE, PROGRESS, MissionProgress
 from executive.compiler import CompileOptions, compile_mission
 from executive.core.frames import AircraftPlacement, Pose2, wrap_angle
@@ -115,6 +121,25 @@ class TrackSample:
     velocity_error: float | None = None
 
 
+@dataclass
+class AvoidanceSample:
+    """One tick of an obstacle avoidance, at TRUTH_RATE_HZ: the law's quantities (NaN for
+    velocity obstacles) and the true clearance."""
+
+    t: float
+    episode: int
+    mode: str
+    obstacle: int | None
+    alpha_d: float
+    xi: float
+    beta_c: float
+    e_alpha: float
+    e_r: float
+    v: float
+    omega: float
+    clearance: float
+
+
 TRACK_MATCH_RADIUS = 1.0
 """A track within this distance (m) of a mover's true centre is taken to be that mover."""
 
@@ -146,6 +171,7 @@ class DryRun:
     registrations: list[RegistrationSample] = field(default_factory=list)
     localisation: list[LocalisationSample] = field(default_factory=list)
     tracks: list[TrackSample] = field(default_factory=list)
+    avoidance: list[AvoidanceSample] = field(default_factory=list)
     final_placement: AircraftPlacement | None = None
 
     @property
@@ -160,8 +186,16 @@ class DryRun:
 class _Watcher:
     """Ground-truth judge, called after every tick (samples at TRUTH_RATE_HZ)."""
 
-    def __init__(self, robot: SimRobot, scenario: Scenario) -> None:
+    def __init__(
+        self,
+        robot: SimRobot,
+        scenario: Scenario,
+        avoiders: Sequence[AvoidObstacle | DodgeObstacle] = (),
+    ) -> None:
         self.robot = robot
+        self.avoiders = list(avoiders)
+        self.avoidance: list[AvoidanceSample] = []
+        self._episodes: dict[tuple[int, int], int] = {}
         self.scenario = scenario
         mission = scenario.mission
         self.true = scenario.true_placement()
@@ -255,6 +289,34 @@ class _Watcher:
                 clearance,
             )
         )
+        if self.avoiders:
+            self._judge_avoidance(t, sent, clearance)
+
+    def _judge_avoidance(self, t: float, sent: VelocityCommand, clearance: float) -> None:
+        for node in self.avoiders:
+            if node.status != py_trees.common.Status.RUNNING:
+                continue
+            session = node.session
+            key = (id(session), session.count)
+            episode = self._episodes.setdefault(key, len(self._episodes) + 1)
+            out = node.last if isinstance(node, AvoidObstacle) else None
+            nan = math.nan
+            self.avoidance.append(
+                AvoidanceSample(
+                    round(t, 3),
+                    episode,
+                    session.mode,
+                    session.obstacle_id,
+                    out.alpha_d if out else nan,
+                    out.xi if out else nan,
+                    out.beta_c if out else nan,
+                    out.e_alpha if out else nan,
+                    out.e_r if out else nan,
+                    sent.v,
+                    sent.omega,
+                    clearance,
+                )
+            )
 
     def _judge_registration(self, t: float, pose: PoseEstimate, true: Pose2) -> None:
         reg = pose.registration
@@ -423,7 +485,10 @@ def dry_run(
         journal = Journal(journal_path, mission.id, append=resume)
         if resumed is not None:
             journal.resume_from(resumed)
-    watcher = _Watcher(robot, scenario)
+    avoiders = [
+        n for n in compiled.root.iterate() if isinstance(n, AvoidObstacle | DodgeObstacle)
+    ]
+    watcher = _Watcher(robot, scenario, avoiders)
     show = _Progress(progress_out, len(mission.checkpoints))
 
     def on_tick(t: float, frame: SensorFrame, sent: VelocityCommand, rt: Runtime) -> None:
@@ -467,6 +532,7 @@ def dry_run(
         registrations=watcher.registrations,
         localisation=watcher.localisation,
         tracks=watcher.tracks,
+        avoidance=watcher.avoidance,
         final_placement=watcher.final_placement,
     )
 

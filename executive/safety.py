@@ -26,11 +26,16 @@ the e-stop, faults and the geofence always win over the tree):
    (default: three periods of the slowest laser; every scan in the frame is checked too),
    an obstacle estimate that is missing or older than ``stale_after``, a missing or
    non-finite pose estimate.
-4. **Slowdown zone** (like Nav2's collision monitor): while ``r_c < r_oa_trigger`` the
-   requested forward speed is scaled by ``s = clamp((r_c - r_es) / (r_oa - r_es), floor, 1)``.
+4. **Slowdown zone** (like Nav2's collision monitor, with the direction of travel of
+   speed-and-separation monitoring): the requested speed is scaled by
+   ``s = clamp((r_d - r_es) / (r_oa - r_es), floor, 1)`` where r_d is the distance from
+   the footprint to the nearest laser return *in the half-plane the robot drives into*
+   (ahead of the axle for v > 0, behind it for v < 0; r_c itself when only r_c and its
+   bearing are known and the bearing lies that way). Driving away from an obstacle is
+   not slowed, so avoidance can outpace an obstacle closing in from behind or the side.
    The floor (``slowdown_floor``, default 0.2) keeps obstacle avoidance able to creep round
-   an obstacle; the e-stop takes over below r_es anyway. Only v is scaled, in both
-   directions; omega and the pan/tilt rates are not.
+   an obstacle; the e-stop takes over below r_es anyway. Only v is scaled; omega and the
+   pan/tilt rates are not.
 5. **Magnitude limits**: |v| <= max_speed, |omega| <= max_angular_speed, each pan/tilt rate
    within its camera's pan_rate / tilt_rate; a rate for an unknown unit is dropped. Every
    output names every platform unit (zero when the tree gave no rate).
@@ -97,6 +102,7 @@ from shapely.geometry.base import BaseGeometry
 
 from behaviours.laws import estop
 from behaviours.laws.estop import EStopLatch
+from behaviours.laws.obstacles import footprint_distances
 from executive.core.frames import AircraftPlacement, FloatArray
 from executive.core.model import Circle, ForbiddenZone, Frame, Mission
 from executive.core.records import (
@@ -566,7 +572,7 @@ class SafetyLayer:
         # 3. stale data
         self._update_stale(now, frame, pose, obstacles)
         stop = self._stop_reason()
-        scale = self._slowdown(now, obstacles)
+        scale = self._slowdown(now, obstacles, command.v)
         xy = _pose_tuple(pose)
         if stop is not None:
             self._v = self._a = self._w = 0.0
@@ -685,9 +691,9 @@ class SafetyLayer:
         return None
 
     # -- slowdown and limits ---------------------------------------------------------------------
-    def _slowdown(self, now: float, obstacles: Obstacles | None) -> float:
+    def _slowdown(self, now: float, obstacles: Obstacles | None, v: float) -> float:
         r_es, r_oa = self.safety.r_es, self.safety.r_oa_trigger
-        r_c = obstacles.closest if obstacles is not None else math.inf
+        r_c = self._closing_clearance(obstacles, v) if obstacles is not None else math.inf
         scale = 1.0
         if r_c < r_oa:
             scale = min(1.0, max(self.slowdown_floor, (r_c - r_es) / (r_oa - r_es)))
@@ -705,6 +711,21 @@ class SafetyLayer:
         elif reported == 0:
             self._emit(now, SLOWDOWN_END, f"no obstacle within r_OA-trigger {r_oa:.2f} m", r_c)
         return scale
+
+    def _closing_clearance(self, obstacles: Obstacles, v: float) -> float:
+        """r_d: the footprint's distance to the nearest return the motion ``v`` drives
+        towards (NaN, unknown, stays NaN)."""
+        r_c = obstacles.closest
+        if not r_c < self.safety.r_oa_trigger or v == 0.0:
+            return r_c
+        points = obstacles.points
+        if len(points) == 0:
+            return r_c if v * math.cos(obstacles.bearing) > 0.0 else math.inf
+        ahead = points[points[:, 0] * v > 0.0]
+        if len(ahead) == 0:
+            return math.inf
+        platform = self.mission.platform
+        return float(footprint_distances(ahead, platform.length, platform.width).min())
 
     def _pan_tilt(
         self, requested: Mapping[str, PanTiltRate], clipped: set[str]

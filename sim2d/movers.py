@@ -111,24 +111,33 @@ class GroupMotion:
 @dataclass
 class ChaserMotion:
     """Steers straight at the robot at a set speed once the robot is within range
-    (the adversarial trolley of the thesis's stress test)."""
+    (the adversarial trolley of the thesis's stress test). With a ``pursuit`` time the
+    pusher gives up after it, pushes the trolley back to where it waited and stays."""
 
     spec: Chaser
     agent: Agent = field(init=False)
-    triggered: bool = False
+    triggered_at: float | None = None
+    gave_up: bool = False
 
     def __post_init__(self) -> None:
         self.agent = Agent(self.spec.id, *self.spec.start)
 
-    def update(self, robot_xy: tuple[float, float]) -> None:
-        a = self.agent
-        dx, dy = robot_xy[0] - a.x, robot_xy[1] - a.y
+    def update(self, robot_xy: tuple[float, float], now: float) -> None:
+        a, spec = self.agent, self.spec
+        if self.triggered_at is None:
+            reach = spec.trigger_radius
+            if reach is None or math.hypot(robot_xy[0] - a.x, robot_xy[1] - a.y) <= reach:
+                self.triggered_at = now
+        if self.triggered_at is None:
+            a.vx = a.vy = 0.0
+            return
+        if spec.pursuit is not None and now - self.triggered_at > spec.pursuit:
+            self.gave_up = True
+        goal = spec.start if self.gave_up else robot_xy
+        dx, dy = goal[0] - a.x, goal[1] - a.y
         dist = math.hypot(dx, dy)
-        if not self.triggered:
-            radius = self.spec.trigger_radius
-            self.triggered = radius is None or dist <= radius
-        if not self.triggered or dist < 1e-6:
+        if dist < (0.05 if self.gave_up else 1e-6):
             a.vx = a.vy = 0.0
             return
         a.heading = math.atan2(dy, dx)
-        a.vx, a.vy = self.spec.speed * dx / dist, self.spec.speed * dy / dist
+        a.vx, a.vy = spec.speed * dx / dist, spec.speed * dy / dist

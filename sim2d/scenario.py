@@ -165,6 +165,8 @@ class Chaser:
     height: float
     speed: float
     trigger_radius: float | None = None
+    pursuit: float | None = None
+    """Seconds of chase once triggered; then back to ``start`` for good (None: forever)."""
 
 
 Obstacle = StaticObstacle | PathMover | LoiteringGroup | Chaser
@@ -297,6 +299,7 @@ def _obstacle(r: ElementReader, el: etree._Element) -> Obstacle:
         height=height,
         speed=r.num(el, "speed"),
         trigger_radius=r.opt_num(el, "trigger-radius"),
+        pursuit=r.opt_num(el, "pursuit"),
     )
 
 

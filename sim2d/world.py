@@ -360,7 +360,7 @@ class World:
         for group in self.groups:
             group.update(self.dt)
         for chaser in self.chasers:
-            chaser.update(robot_xy)
+            chaser.update(robot_xy, self.time)
         for m in self.moving:
             a = m.agent
             if (a.vx, a.vy) != m.velocity:  # pymunk attribute writes are not free

@@ -815,3 +815,26 @@ def test_missions_with_fewer_zones(keep):
     assert out.v == pytest.approx(1.0)
     assert (lay.status.geofence_zone is None) == (keep == "none")
     assert set(lay.zone_geometries) == {z.id for z in zones}
+
+
+def test_slowdown_only_slows_motion_towards_the_obstacle():
+    """An obstacle 1 m behind does not slow the robot driving forward (away from it), and
+    does slow it backing up; a return ahead still slows it (speed-and-separation)."""
+    s = mission().safety
+    expect = max(0.2, (1.0 - s.r_es) / (s.r_oa_trigger - s.r_es))
+    behind = np.array([[-0.7 - 1.0, 0.0]])  # 1 m behind the 1.4 m footprint's rear
+    ahead = np.array([[0.7 + 1.0, 0.0]])
+    for points, v, scale in ((behind, 1.5, 1.0), (behind, -1.0, expect), (ahead, 1.5, expect)):
+        lay = layer()
+        b = Bench(lay)
+        for _ in range(100):
+            out = lay.filter(
+                cmd(v),
+                now=b.t,
+                frame=b.frame(0.0, False),
+                pose=b.pose(),
+                obstacles=Obstacles(b.t, 1.0, math.atan2(points[0, 1], points[0, 0]), points),
+            )
+            b.t = round(b.t + PERIOD, 9)
+        assert lay.status.speed_scale == pytest.approx(scale)
+        assert out.v == pytest.approx(v * scale)

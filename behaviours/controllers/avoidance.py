@@ -16,6 +16,7 @@ every leg clear of them and the safety layer's geofence is the hard limit.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Protocol
@@ -30,13 +31,25 @@ from behaviours.laws.rate_limit import RateLimiter, RateLimits
 from behaviours.laws.spiral import (
     SpiralAvoidance,
     SpiralObstacle,
+    SpiralOutput,
     SpiralParams,
     path_blocked,
 )
-from behaviours.laws.velocity_obstacles import MovingDisc, VoParams, choose_velocity
+from behaviours.laws.velocity_obstacles import (
+    MovingDisc,
+    VelocityChoice,
+    VoParams,
+    choose_velocity,
+)
 from executive.core.frames import Pose2, wrap_angle
 from executive.core.model import Platform
-from executive.core.records import Obstacles, PoseEstimate, TrackedObstacle, VelocityCommand
+from executive.core.records import (
+    Danger,
+    Obstacles,
+    PoseEstimate,
+    TrackedObstacle,
+    VelocityCommand,
+)
 
 Status = py_trees.common.Status
 
@@ -58,22 +71,34 @@ def obstacle_in_airport(track: TrackedObstacle, pose_a: Pose2) -> SpiralObstacle
     )
 
 
+SPIRAL = "spiral"
+DODGE = "velocity obstacles"
+
+
 @dataclass
 class AvoidanceSession:
-    """What the guard and the controller of one navigation share."""
+    """One avoidance of one obstacle: what the policy and the controllers share."""
 
     obstacle_id: int | None = None
+    mode: str = SPIRAL
     engaged_at: float = 0.0
     missing_since: float | None = None
+    clear_since: float | None = None
     released: bool = False
     reason: str = ""
+    count: int = 0
+    """Engagements so far in this navigation (for the report)."""
+    margin: float = 1.4
+    """Half-width of the corridor robot -> goal (the policy's; the spiral's release uses
+    the same, so engage and release stay exclusive)."""
 
 
 class AvoiderFactory(Protocol):
-    """Builds the avoidance controller of one navigation (the compiler's plug-in point).
+    """Builds an avoidance controller of one navigation (the compiler's plug-in point).
 
-    :class:`AvoidObstacle` is the shipped one; ``benchmarks/dwa.py`` plugs a
-    dynamic-window baseline in through :attr:`executive.compiler.CompileOptions.avoider`.
+    :class:`DodgeObstacle` and :class:`AvoidObstacle` are the shipped ones;
+    ``benchmarks/dwa.py`` plugs a dynamic-window baseline in for both through
+    :attr:`executive.compiler.CompileOptions.avoider`.
     """
 
     def __call__(
@@ -81,86 +106,243 @@ class AvoiderFactory(Protocol):
     ) -> Controller: ...
 
 
-class AvoidanceTrigger(Guard):
-    """r_c < r_OA-trigger for an obstacle on the way to the goal engages the avoidance;
-    the spiral's release condition (or the obstacle lost for ``lost_after`` s) ends it.
+@dataclass(frozen=True, slots=True)
+class AvoidanceParams:
+    """Tuning of :class:`AvoidancePolicy` (SI units)."""
 
-    The path check is the thesis's "distance to the target" check (figure 4.15): an
-    obstacle beside the path or beyond the goal does not engage, so a released robot is
-    not caught again by the same obstacle.
+    r_oa: float = 2.5
+    """r_OA-trigger: clearance under which an obstacle on the way engages the avoidance."""
+    margin: float = 1.4
+    """Half-width of the corridor robot -> goal in which an obstacle is "on the way"."""
+    fast_speed: float = 0.25
+    """An obstacle faster than this is avoided with velocity obstacles (the spiral runs
+    at nu_max = 0.4 m/s and cannot outpace it)..."""
+    slow_speed: float = 0.12
+    """...and with the spiral again once slower than this (hysteresis)."""
+    lost_after: float = 1.0
+    """An obstacle not tracked for this long releases the avoidance (s)."""
+    clear_after: float = 1.0
+    """Velocity obstacles end once the obstacle has been harmless for this long (s)."""
+    hold_off: float = 3.0
+    """A released obstacle does not engage again for this long (s), unless it comes
+    closer than r_OA / 2: no re-trigger loop on a noisy boundary."""
+    speed_time_constant: float = 0.5
+    """Low-pass filter of each track's observable speed (s)."""
+
+
+class AvoidancePolicy:
+    """Which obstacle to avoid and how; shared by the guards of one navigation.
+
+    Engage (when no avoidance runs): the tracked obstacle (not a ``zone`` wall) with the
+    smallest clearance among those under r_OA-trigger that are on the way to the goal —
+    the straight corridor robot -> goal (the thesis's distance-to-target check, figure
+    4.15) — or that move onto the robot's path (track danger ``ON_PATH`` or worse and
+    faster than ``slow_speed``: a trolley coming from the side). Mode: velocity obstacles
+    when the obstacle moves faster than ``fast_speed``, else the spiral.
+
+    While engaged: the spiral ends when its release condition holds (set by the
+    controller in the session) or the track is lost; velocity obstacles end once the
+    obstacle has stayed off the path (danger below ``ON_PATH`` and not in the corridor)
+    for ``clear_after``. A spiral switches to velocity obstacles when its obstacle speeds
+    up, or when another, faster obstacle moves onto the path; velocity obstacles switch
+    back to the spiral when the obstacle slows down while still in the way.
+
+    :meth:`decide` is evaluated once per obstacle estimate (the guards of one tick share
+    it); every change leaves its reason in :attr:`message`.
+    """
+
+    def __init__(self, goal: Goal, params: AvoidanceParams) -> None:
+        self.goal, self.params = goal, params
+        self.session = AvoidanceSession(margin=params.margin)
+        self._released: dict[int, float] = {}
+        self._speeds: dict[int, float] = {}
+        self.message = ""
+        self._stamp: float | None = None
+        self._mode: str | None = None
+
+    def decide(self, obstacles: Obstacles, pose: PoseEstimate) -> str | None:
+        """The avoidance mode for this tick (SPIRAL or DODGE), None when none is needed."""
+        if self._stamp != obstacles.stamp:
+            dt = obstacles.stamp - self._stamp if self._stamp is not None else 0.0
+            self._stamp = obstacles.stamp
+            self._mode = self._decide(obstacles, pose, dt)
+        return self._mode
+
+    def _smoothed_speeds(
+        self, candidates: dict[int, tuple[TrackedObstacle, SpiralObstacle]], dt: float
+    ) -> None:
+        """Low-pass the observable speed of each track (a noisy estimate must not flip the
+        mode every tick)."""
+        gain = min(1.0, max(dt, 0.0) / self.params.speed_time_constant)
+        speeds = {}
+        for ident, (_, obstacle) in candidates.items():
+            measured = obstacle.observable_speed
+            previous = self._speeds.get(ident)
+            speeds[ident] = (
+                measured if previous is None else previous + gain * (measured - previous)
+            )
+        self._speeds = speeds
+
+    def _decide(self, obstacles: Obstacles, pose: PoseEstimate, dt: float) -> str | None:
+        p, session, now = self.params, self.session, obstacles.stamp
+        robot = np.array([pose.pose_a.x, pose.pose_a.y])
+        target = self.goal.in_airport(pose)
+        target_xy = np.array([target.x, target.y])
+        candidates = {
+            t.id: (t, obstacle_in_airport(t, pose.pose_a))
+            for t in obstacles.tracks
+            if t.kind != "zone"
+        }
+        self._smoothed_speeds(candidates, dt)
+        speed = self._speeds
+        if session.obstacle_id is not None:
+            if session.released:
+                return self._end(now, session.reason)
+            current = candidates.get(session.obstacle_id)
+            if current is None:
+                session.missing_since = session.missing_since or now
+                if now - session.missing_since > p.lost_after:
+                    return self._end(now, "obstacle no longer tracked")
+                return session.mode
+            session.missing_since = None
+            track, obstacle = current
+            blocked = path_blocked(robot, target_xy, obstacle, p.margin)
+            if session.mode == SPIRAL:
+                if speed[track.id] > p.fast_speed:
+                    return self._switch(DODGE, track, f"it moves at {speed[track.id]:.2f} m/s")
+                threat = self._threat(candidates, robot, target_xy, now, faster_than=p.fast_speed)
+                if threat is not None and threat[0].id != track.id:
+                    other = threat[0]
+                    return self._switch(
+                        DODGE, other, f"obstacle {other.id} closing in at {speed[other.id]:.2f} m/s"
+                    )
+                return SPIRAL
+            if speed[track.id] < p.slow_speed and blocked:
+                return self._switch(SPIRAL, track, f"it slowed to {speed[track.id]:.2f} m/s")
+            harmless = track.danger < Danger.ON_PATH and not blocked
+            if not harmless:
+                session.clear_since = None
+                return DODGE
+            session.clear_since = session.clear_since or now
+            if now - session.clear_since >= p.clear_after:
+                return self._end(now, "obstacle off the path")
+            return DODGE
+        if float(np.hypot(*(target_xy - robot))) < p.margin:
+            self.message = "at the goal"
+            return None
+        threat = self._threat(candidates, robot, target_xy, now, faster_than=None)
+        if threat is None:
+            self.message = f"way clear (r_c {obstacles.closest_any:.2f} m)"
+            return None
+        track, obstacle = threat
+        mode = DODGE if speed[track.id] > p.fast_speed else SPIRAL
+        session.obstacle_id, session.mode, session.engaged_at = track.id, mode, now
+        session.released, session.reason = False, ""
+        session.missing_since = session.clear_since = None
+        session.count += 1
+        self.message = (
+            f"obstacle {track.id} ({track.kind}, {speed[track.id]:.2f} m/s) "
+            f"{track.clearance:.2f} m < r_OA {p.r_oa:.2f} m on the way"
+        )
+        return mode
+
+    def _threat(
+        self,
+        candidates: dict[int, tuple[TrackedObstacle, SpiralObstacle]],
+        robot: np.ndarray,
+        target_xy: np.ndarray,
+        now: float,
+        faster_than: float | None,
+    ) -> tuple[TrackedObstacle, SpiralObstacle] | None:
+        """The closest obstacle under r_OA on the way or moving onto the path (one just
+        released is ignored for ``hold_off`` s unless it comes closer than r_OA / 2)."""
+        p = self.params
+        best: tuple[TrackedObstacle, SpiralObstacle] | None = None
+        for track, obstacle in candidates.values():
+            if track.clearance >= p.r_oa:
+                continue
+            speed = self._speeds[track.id]
+            if faster_than is not None and speed <= faster_than:
+                continue
+            released = self._released.get(track.id)
+            held_off = released is not None and now - released < p.hold_off
+            if held_off and track.clearance >= 0.5 * p.r_oa:
+                continue
+            moving_in = track.danger >= Danger.ON_PATH and speed > p.slow_speed
+            if not (moving_in or path_blocked(robot, target_xy, obstacle, p.margin)):
+                continue
+            if best is None or track.clearance < best[0].clearance:
+                best = (track, obstacle)
+        return best
+
+    def _switch(self, mode: str, track: TrackedObstacle, why: str) -> str:
+        session = self.session
+        session.obstacle_id, session.mode, session.clear_since = track.id, mode, None
+        self.message = f"obstacle {track.id}: {mode} ({why})"
+        return mode
+
+    def _end(self, now: float, reason: str) -> None:
+        session = self.session
+        if session.obstacle_id is not None:
+            self._released[session.obstacle_id] = now
+        session.obstacle_id, session.released = None, False
+        session.missing_since = session.clear_since = None
+        self.message = f"released: {reason}"
+        return None
+
+
+class AvoidanceTrigger(Guard):
+    """Holds while the navigation's :class:`AvoidancePolicy` asks for ``mode``.
+
+    r_c < r_OA-trigger for an obstacle on the way (or moving onto the path) engages; the
+    spiral's release condition, a harmless obstacle (velocity obstacles) or a lost track
+    ends it. The guard's feedback is the policy's reason, so every switch shows in the
+    controller events.
     """
 
     reads = (OBSTACLES, POSE)
 
-    def __init__(
-        self,
-        goal: Goal,
-        session: AvoidanceSession,
-        r_oa: float,
-        margin: float,
-        lost_after: float = 1.0,
-        name: str = "obstacle on the way?",
-    ) -> None:
-        super().__init__(name)
-        self.goal, self.session = goal, session
-        self.r_oa, self.margin, self.lost_after = r_oa, margin, lost_after
+    def __init__(self, policy: AvoidancePolicy, mode: str, name: str = "") -> None:
+        super().__init__(name or f"{mode}?")
+        self.policy, self.mode = policy, mode
 
     def update(self) -> Status:
         obstacles: Obstacles | None = self.read(OBSTACLES)
         pose: PoseEstimate | None = self.read(POSE)
-        session = self.session
         if obstacles is None or pose is None:
+            self.feedback_message = "no obstacle estimate or pose"
             return Status.FAILURE
-        now = obstacles.stamp
-        robot = np.array([pose.pose_a.x, pose.pose_a.y])
-        target = self.goal.in_airport(pose)
-        target_xy = np.array([target.x, target.y])
-        if session.obstacle_id is not None:
-            track = next((t for t in obstacles.tracks if t.id == session.obstacle_id), None)
-            if session.released:
-                return self._release(session.reason)
-            if track is None:
-                session.missing_since = session.missing_since or now
-                if now - session.missing_since > self.lost_after:
-                    return self._release("obstacle no longer tracked")
-            else:
-                session.missing_since = None
-            self.feedback_message = f"avoiding obstacle {session.obstacle_id}"
-            return Status.SUCCESS
-        if float(np.hypot(*(target_xy - robot))) < self.margin:
-            self.feedback_message = "at the goal"
-            return Status.FAILURE
-        best: TrackedObstacle | None = None
-        for track in obstacles.tracks:
-            if track.kind == "zone" or track.clearance >= self.r_oa:
-                continue
-            obstacle = obstacle_in_airport(track, pose.pose_a)
-            if not path_blocked(robot, target_xy, obstacle, self.margin):
-                continue
-            if best is None or track.clearance < best.clearance:
-                best = track
-        if best is None:
-            self.feedback_message = f"way clear (r_c {obstacles.closest:.2f} m)"
-            return Status.FAILURE
-        session.obstacle_id, session.engaged_at = best.id, now
-        session.released, session.reason, session.missing_since = False, "", None
-        self.feedback_message = (
-            f"obstacle {best.id} ({best.kind}) {best.clearance:.2f} m < r_OA "
-            f"{self.r_oa:.2f} m on the way"
-        )
-        return Status.SUCCESS
+        mode = self.policy.decide(obstacles, pose)
+        self.feedback_message = self.policy.message
+        return Status.SUCCESS if mode == self.mode else Status.FAILURE
 
-    def _release(self, reason: str) -> Status:
-        self.session.obstacle_id = None
-        self.session.released = False
-        self.feedback_message = f"released: {reason}"
-        return Status.FAILURE
+
+def _rate_limiter(platform: Platform) -> RateLimiter:
+    return RateLimiter(
+        RateLimits(
+            max_acceleration=platform.max_acceleration,
+            max_angular_acceleration=platform.max_angular_acceleration,
+            max_speed=platform.max_speed,
+            max_angular_speed=platform.max_angular_speed,
+        )
+    )
+
+
+def _session_track(
+    obstacles: Obstacles | None, session: AvoidanceSession
+) -> TrackedObstacle | None:
+    if obstacles is None or session.obstacle_id is None:
+        return None
+    return next((t for t in obstacles.tracks if t.id == session.obstacle_id), None)
 
 
 class AvoidObstacle(Controller):
-    """Spiral obstacle avoidance around the session's obstacle (eqs. 4.1-4.16), velocity
-    obstacles (Fiorini and Shiller) when it moves faster than ``vo_speed``; the command is
-    rate limited (the thesis's future-work item: no oscillating velocities)."""
+    """Spiral obstacle avoidance around the session's obstacle (eqs. 4.1-4.16); the
+    command is rate limited (the thesis's future-work item: no oscillating velocities).
+
+    :attr:`last` keeps the law's last :class:`SpiralOutput` (alpha_d, xi, beta_c, e_alpha,
+    e_r, ...) for the report.
+    """
 
     reads = (OBSTACLES, POSE)
     writes = (COMMAND,)
@@ -172,41 +354,27 @@ class AvoidObstacle(Controller):
         platform: Platform,
         period: float,
         params: SpiralParams | None = None,
-        vo_speed: float = 1.5,
         name: str = "spiral avoidance",
     ) -> None:
         super().__init__(name)
         self.goal, self.session, self.period = goal, session, period
         self.params = params or SpiralParams()
         self.law = SpiralAvoidance(self.params)
-        self.vo_speed = vo_speed
-        radius = 0.5 * math.hypot(platform.length, platform.width)
-        self.vo = VoParams(
-            v_max=self.params.nu_max,
-            omega_max=min(self.params.omega_max, platform.max_angular_speed),
-            robot_radius=radius,
-        )
-        self.limiter = RateLimiter(
-            RateLimits(
-                max_acceleration=platform.max_acceleration,
-                max_angular_acceleration=platform.max_angular_acceleration,
-                max_speed=platform.max_speed,
-                max_angular_speed=platform.max_angular_speed,
-            )
-        )
-        self.mode = "spiral"
+        self.limiter = _rate_limiter(platform)
+        self.last: SpiralOutput | None = None
 
     def initialise(self) -> None:
-        self.law.reset()
+        # the release check uses the policy's corridor: engage and release stay exclusive
+        self.law = SpiralAvoidance(
+            dataclasses.replace(self.params, path_margin=self.session.margin)
+        )
         self.limiter.reset(0.0, 0.0)
+        self.last = None
 
     def update(self) -> Status:
         obstacles: Obstacles | None = self.read(OBSTACLES)
         pose: PoseEstimate | None = self.read(POSE)
-        session = self.session
-        track = None
-        if obstacles is not None and session.obstacle_id is not None:
-            track = next((t for t in obstacles.tracks if t.id == session.obstacle_id), None)
+        track = _session_track(obstacles, self.session)
         if pose is None or track is None:
             v, omega = self.limiter.step(0.0, 0.0, self.period)
             self.write(COMMAND, VelocityCommand(v, omega))
@@ -214,33 +382,105 @@ class AvoidObstacle(Controller):
             return Status.RUNNING
         obstacle = obstacle_in_airport(track, pose.pose_a)
         target = self.goal.in_airport(pose)
-        target_xy = np.array([target.x, target.y])
-        if obstacle.speed > self.vo_speed:
-            v, omega = self._velocity_obstacles(pose.pose_a, target_xy, obstacle)
-            self.mode = "velocity obstacles"
-            self.feedback_message = f"VO: obstacle {track.id} at {obstacle.speed:.1f} m/s"
-        else:
-            out = self.law.command(pose.pose_a, target_xy, obstacle, self.period)
-            if out.released:
-                session.released, session.reason = True, out.reason
-            v, omega = out.v, out.omega
-            self.mode = "spiral"
-            self.feedback_message = (
-                f"spiral: alpha_d {math.degrees(out.alpha_d):.0f} deg, beta_c "
-                f"{math.degrees(out.beta_c):.0f} deg, e_r {out.e_r:.2f} m"
-            )
-        v, omega = self.limiter.step(v, omega, self.period)
+        out = self.law.command(pose.pose_a, np.array([target.x, target.y]), obstacle, self.period)
+        if out.released:
+            self.session.released, self.session.reason = True, out.reason
+        self.last = out
+        v, omega = self.limiter.step(out.v, out.omega, self.period)
         self.write(COMMAND, VelocityCommand(v, omega))
+        self.feedback_message = (
+            f"spiral: alpha_d {math.degrees(out.alpha_d):.0f} deg, beta_c "
+            f"{math.degrees(out.beta_c):.0f} deg, e_r {out.e_r:.2f} m"
+        )
         return Status.RUNNING
 
-    def _velocity_obstacles(
-        self, pose: Pose2, target_xy: np.ndarray, obstacle: SpiralObstacle
-    ) -> tuple[float, float]:
-        bearing = math.atan2(target_xy[1] - pose.y, target_xy[0] - pose.x)
-        error = wrap_angle(bearing - pose.theta)
-        preferred = (self.vo.v_max * max(0.0, math.cos(error)), max(-1.0, min(1.0, error)))
-        disc = MovingDisc(obstacle.position, obstacle.velocity, obstacle.size)
-        choice = choose_velocity(
-            np.array([pose.x, pose.y]), pose.theta, preferred, (disc,), self.vo
+
+def obstacle_discs(obstacle: SpiralObstacle, spacing: float = 0.5) -> list[MovingDisc]:
+    """An obstacle as discs for the velocity-obstacle law: a line (a wall, a fuselage
+    side) as a row of discs along its segment, anything else as one enclosing disc."""
+    if obstacle.is_line:
+        x0, y0, x1, y1 = obstacle.shape
+        n = max(2, math.ceil(math.hypot(x1 - x0, y1 - y0) / spacing) + 1)
+        radius = 0.5 * spacing
+        return [
+            MovingDisc((float(x), float(y)), obstacle.velocity, radius)
+            for x, y in zip(np.linspace(x0, x1, n), np.linspace(y0, y1, n), strict=True)
+        ]
+    return [MovingDisc(obstacle.position, obstacle.velocity, obstacle.size)]
+
+
+class DodgeObstacle(Controller):
+    """Velocity obstacles (Fiorini and Shiller) against every obstacle tracked within
+    ``reach``, for an obstacle too fast for the spiral (seed line 1516).
+
+    The preferred command heads for the goal; the chosen one lies outside every velocity
+    obstacle within the horizon, within one period of the platform's accelerations. Its
+    top speed is ``escape_factor`` x the fastest obstacle's speed (at least the spiral's
+    nu_max, at most the platform's max speed): a robot no faster than a trolley chasing
+    it cannot get away. Forbidden-zone walls count as static discs. The robot's disc is
+    its circumscribed circle plus ``margin``.
+    """
+
+    reads = (OBSTACLES, POSE)
+    writes = (COMMAND,)
+
+    def __init__(
+        self,
+        goal: Goal,
+        session: AvoidanceSession,
+        platform: Platform,
+        period: float,
+        nu_min: float = 0.4,
+        escape_factor: float = 2.0,
+        margin: float = 0.3,
+        reach: float = 8.0,
+        name: str = "velocity obstacles",
+    ) -> None:
+        super().__init__(name)
+        self.goal, self.session, self.period = goal, session, period
+        self.platform, self.nu_min = platform, nu_min
+        self.escape_factor, self.reach = escape_factor, reach
+        self.radius = 0.5 * math.hypot(platform.length, platform.width) + margin
+        self.limiter = _rate_limiter(platform)
+        self.last: VelocityChoice | None = None
+
+    def initialise(self) -> None:
+        self.limiter.reset(0.0, 0.0)
+        self.last = None
+
+    def update(self) -> Status:
+        obstacles: Obstacles | None = self.read(OBSTACLES)
+        pose: PoseEstimate | None = self.read(POSE)
+        if pose is None or obstacles is None:
+            v, omega = self.limiter.step(0.0, 0.0, self.period)
+            self.write(COMMAND, VelocityCommand(v, omega))
+            self.feedback_message = "no pose or obstacles: braking"
+            return Status.RUNNING
+        robot = pose.pose_a
+        near = [obstacle_in_airport(t, robot) for t in obstacles.tracks if t.clearance < self.reach]
+        fastest = max((o.speed for o in near), default=0.0)
+        v_max = min(self.platform.max_speed, max(self.nu_min, self.escape_factor * fastest))
+        params = VoParams(
+            v_max=v_max,
+            omega_max=self.platform.max_angular_speed,
+            robot_radius=self.radius,
+            horizon=4.0,
         )
-        return choice.v, choice.omega
+        target = self.goal.in_airport(pose)
+        bearing = math.atan2(target.y - robot.y, target.x - robot.x)
+        error = wrap_angle(bearing - robot.theta)
+        preferred = (v_max * max(0.0, math.cos(error)), max(-1.0, min(1.0, 1.5 * error)))
+        discs = tuple(d for o in near for d in obstacle_discs(o))
+        # the whole velocity range, not one period's window: a velocity obstacle assumes
+        # the chosen velocity is held, and the rate limiter below gets there
+        choice = choose_velocity(
+            np.array([robot.x, robot.y]), robot.theta, preferred, discs, params
+        )
+        self.last = choice
+        v, omega = self.limiter.step(choice.v, choice.omega, self.period)
+        self.write(COMMAND, VelocityCommand(v, omega))
+        self.feedback_message = (
+            f"VO: {len(near)} obstacles, fastest {fastest:.2f} m/s, "
+            f"{'clear' if choice.feasible else f'contact in {choice.time_to_collision:.1f} s'}"
+        )
+        return Status.RUNNING

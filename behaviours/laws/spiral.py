@@ -158,6 +158,20 @@ class SpiralObstacle:
         return math.hypot(*self.velocity)
 
     @property
+    def observable_speed(self) -> float:
+        """The speed the lasers can vouch for: across a line obstacle only (its motion
+        along its own direction is unobservable — the aperture problem — and a partial
+        view slides the tracked centroid along a static wall), the full speed otherwise."""
+        if not self.is_line:
+            return self.speed
+        x0, y0, x1, y1 = self.shape
+        length = math.hypot(x1 - x0, y1 - y0)
+        if length < 1e-9:
+            return self.speed
+        nx, ny = -(y1 - y0) / length, (x1 - x0) / length
+        return abs(self.velocity[0] * nx + self.velocity[1] * ny)
+
+    @property
     def centre(self) -> FloatArray:
         """Centre of the compact shape (circle centre, else the tracked position)."""
         if len(self.shape) == 3:

@@ -98,19 +98,36 @@ def velocity_vector(theta: float, v: float, omega: float, heading_lead: float) -
 def time_to_collision(
     robot_xy: FloatArray, velocity: FloatArray, obstacle: MovingDisc, robot_radius: float
 ) -> float:
-    """First time the discs touch under constant velocities; 0 if they overlap, inf never."""
-    p = np.asarray(obstacle.position, dtype=float) - np.asarray(robot_xy, dtype=float)
-    u = np.asarray(velocity, dtype=float) - np.asarray(obstacle.velocity, dtype=float)
-    big_r = robot_radius + obstacle.radius
-    c = float(p @ p) - big_r * big_r
-    if c <= 0.0:
-        return 0.0
-    a = float(u @ u)
-    b = float(p @ u)  # |p - u t|^2 = a t^2 - 2 b t + |p|^2
-    disc = b * b - a * c
-    if a == 0.0 or b <= 0.0 or disc < 0.0:
-        return math.inf
-    return (b - math.sqrt(disc)) / a
+    """First time the discs touch under constant velocities, inf if never.
+
+    Discs that already overlap give 0 unless the relative motion separates them (then
+    inf): a robot that finds itself inside an inflated disc may still leave it.
+    """
+    ttc = _ttc_matrix(
+        np.asarray(robot_xy, dtype=float),
+        np.asarray(velocity, dtype=float).reshape(1, 2),
+        np.asarray(obstacle.position, dtype=float).reshape(1, 2),
+        np.asarray(obstacle.velocity, dtype=float).reshape(1, 2),
+        np.array([robot_radius + obstacle.radius]),
+    )
+    return float(ttc[0, 0])
+
+
+def _ttc_matrix(
+    robot_xy: FloatArray, u: FloatArray, pos: FloatArray, vel: FloatArray, radii: FloatArray
+) -> FloatArray:
+    """Time to collision of K robot velocities ``u`` (K, 2) against M discs: (K, M)."""
+    p = pos - robot_xy  # (M, 2)
+    rel = u[:, None, :] - vel[None, :, :]  # (K, M, 2)
+    c = np.einsum("mi,mi->m", p, p) - radii * radii  # (M,)
+    a = np.einsum("kmi,kmi->km", rel, rel)
+    b = np.einsum("kmi,mi->km", rel, p)  # |p - u t|^2 = a t^2 - 2 b t + |p|^2
+    disc = b * b - a * c[None, :]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        t = (b - np.sqrt(np.maximum(disc, 0.0))) / a
+    ttc = np.where((a > 0.0) & (b > 0.0) & (disc >= 0.0), t, np.inf)
+    overlap = c <= 0.0
+    return np.where(overlap[None, :], np.where(b >= 0.0, 0.0, np.inf), ttc)
 
 
 def in_velocity_obstacle(
@@ -150,18 +167,22 @@ def choose_velocity(
             w_hi = min(w_hi, max(w_lo, current[1] + p.max_angular_acceleration * dt))
     vs = np.append(np.linspace(v_lo, v_hi, p.n_v), min(v_hi, max(v_lo, preferred[0])))
     ws = np.append(np.linspace(w_lo, w_hi, p.n_omega), min(w_hi, max(w_lo, preferred[1])))
-    best: tuple[tuple[float, float], float, float, float] | None = None  # key, v, w, ttc
-    for v in vs:
-        for w in ws:
-            u = velocity_vector(theta, float(v), float(w), p.heading_lead)
-            ttc = min(
-                (time_to_collision(robot_xy, u, o, p.robot_radius) for o in obstacles),
-                default=math.inf,
-            )
-            cost = ((v - preferred[0]) / p.v_max) ** 2 + ((w - preferred[1]) / p.omega_max) ** 2
-            key = (0.0 if ttc >= p.horizon else -ttc, float(cost))
-            if best is None or key < best[0]:
-                best = (key, float(v), float(w), ttc)
-    assert best is not None
-    _, v, w, ttc = best
+    v_grid, w_grid = (g.ravel() for g in np.meshgrid(vs, ws, indexing="ij"))
+    heading = theta + w_grid * p.heading_lead
+    u = np.column_stack((v_grid * np.cos(heading), v_grid * np.sin(heading)))
+    if obstacles:
+        ttc_all = _ttc_matrix(
+            np.asarray(robot_xy, dtype=float),
+            u,
+            np.array([o.position for o in obstacles], dtype=float),
+            np.array([o.velocity for o in obstacles], dtype=float),
+            np.array([p.robot_radius + o.radius for o in obstacles]),
+        ).min(axis=1)
+    else:
+        ttc_all = np.full(len(u), np.inf)
+    cost = ((v_grid - preferred[0]) / p.v_max) ** 2 + ((w_grid - preferred[1]) / p.omega_max) ** 2
+    # lexicographic: collision-free first (then the cheapest), else the latest collision
+    late = np.where(ttc_all >= p.horizon, 0.0, -ttc_all)
+    k = int(np.lexsort((cost, late))[0])
+    v, w, ttc = float(v_grid[k]), float(w_grid[k]), float(ttc_all[k])
     return VelocityChoice(v, w, ttc >= p.horizon, ttc)
