@@ -9,11 +9,17 @@ Robotics & Automation Magazine 4(1), 1997. Written here from the paper's descrip
 The law (:func:`dwa_choose`, pure: numpy and math)
 --------------------------------------------------
 1. **Dynamic window.** The candidates (v, omega) are an ``n_v`` x ``n_omega`` grid over the
-   velocities reachable from the current one within ``window`` seconds (one control
-   period) at the platform's accelerations, intersected with the speed limits::
+   velocities reachable from the current one within ``window`` = T seconds (one control
+   period of the DWA) at the platform's accelerations, intersected with the limits::
 
        V_d = [v0 - a_v T, v0 + a_v T] & [v_min, v_max]
        W_d = [w0 - a_w T, w0 + a_w T] & [-omega_max, omega_max]
+
+   The DWA's control period is Fox et al.'s 0.25 s, not the executive's 20 ms tick: with
+   a one-tick window (+-0.02 m/s, +-0.04 rad/s) the search only sees a tiny neighbourhood
+   of the current velocity and stays in local maxima of the objective (on a kinematic
+   check it drove straight at a car across the track and stopped in front of it, the
+   objective being flat in omega at omega = 0 there); with 0.25 s it turns away in time.
 
 2. **Arcs.** Each candidate is held constant over ``horizon`` seconds (unicycle arc,
    integrated every ``step`` s) from the current pose.
@@ -31,15 +37,21 @@ The law (:func:`dwa_choose`, pure: numpy and math)
 
        G(v, w) = w_heading * heading + w_clearance * clearance + w_speed * velocity
 
-   ``heading`` = 1 - |bearing of the target from the arc's end pose| / pi (1: the robot
-   ends the horizon facing the target); ``clearance`` = min(arc clearance, cap) / cap
-   (cap = ``clearance_cap``; Fox et al. use the distance to the first obstacle on the arc,
-   we use the arc's smallest clearance, which also scores moving obstacles passing beside
-   it); ``velocity`` = v / v_max. Default weights 1.0 / 0.6 / 0.3: the heading dominates
-   as in the paper (alpha = 2, beta = gamma = 0.2 after their normalisation), the
-   clearance weight is larger than the paper's because ours is scaled over 1.5 m, not
-   over the whole candidate set, and must make the robot turn away before the arcs ahead
-   become colliding.
+   ``heading`` = 1 - |bearing of the target| / pi, the bearing taken (as in the paper) at
+   the pose reached after one window followed by a full-deceleration stop, so that
+   turning away costs little heading; ``clearance`` = min(arc clearance, cap) / cap with
+   cap = ``clearance_cap`` and the arc clearance that of a disc of ``body_radius`` at
+   the axle (see :func:`arc_clearances`; Fox et al. use the distance to the first
+   obstacle on the arc, we use the arc's smallest clearance, which also scores moving
+   obstacles passing beside it); ``velocity`` = v / v_max. Default weights
+   1.0 / 0.6 / 0.3: the heading dominates as in the paper (alpha = 2, beta = gamma = 0.2
+   after their per-cycle normalisation); our clearance weight is larger because the term
+   is scaled over 1.5 m rather than over the candidate set, and must make the robot turn
+   away before the arcs ahead become colliding. Chosen on a kinematic check (unicycle
+   with the platform's accelerations; a static disc, a car along and across the track,
+   a wall with a gap, crossing and oncoming movers): the footprint clearance stayed
+   >= 1.1 m in every case and the robot reached the goal in all but one, where it ran
+   alongside a mover that kept crossing for ever (a local method: it never turns back).
 6. **Choice.** The best-scoring collision-free candidate; when there is none, the
    admissible candidate with the latest contact (then the best score); when none is
    admissible either, the strongest braking in the window with the turn rate that delays
@@ -63,11 +75,14 @@ track within ``sensing_range`` (6 m) of the robot, not only the session's one:
   campaign);
 * tracks slower than ``static_speed`` (tracker noise on parked things) are static.
 
-The current velocity is the last command it wrote (after the platform limits). It sets
-``session.released`` with a reason when the session's obstacle no longer blocks the straight
-path to the goal (:func:`behaviours.laws.spiral.path_blocked`, with the guard's margin) or
-lies wholly behind the robot (behind the line through the axle, across the direction to
-the goal); the guard then hands back to go-to-goal.
+It re-plans every DWA period (``window``, rounded to whole ticks) and holds its command in
+between, like the paper's 4 Hz controller; the safety layer ramps each new command at the
+platform's limits (the window is what they allow in one DWA period). The current velocity
+is the last command it chose. It sets ``session.released`` with a reason when the
+session's obstacle no longer blocks the straight path to the goal
+(:func:`behaviours.laws.spiral.path_blocked`, with the guard's margin) or lies wholly
+behind the robot (behind the line through the axle, across the direction to the goal);
+the guard then hands back to go-to-goal.
 """
 
 from __future__ import annotations
@@ -140,14 +155,15 @@ class DwaParams:
     omega_max: float = 1.0
     max_acceleration: float = 1.0
     max_angular_acceleration: float = 2.0
-    window: float = 0.02
-    """T: the window holds the velocities reachable within this time (one control period)."""
+    window: float = 0.25
+    """T: the DWA's control period (Fox et al.: 0.25 s); the window holds the velocities
+    reachable within it (module docstring)."""
     horizon: float = 2.5
     """How long each arc is simulated (s)."""
     step: float = 0.1
     """Integration step of the arcs (s)."""
-    n_v: int = 5
-    n_omega: int = 11
+    n_v: int = 7
+    n_omega: int = 15
     length: float = 1.4
     """Robot footprint, a rectangle centred on the axle (m)."""
     width: float = 1.0
@@ -156,6 +172,9 @@ class DwaParams:
     missions (0.6 m) + 0.05 m, so that a chosen arc does not latch the e-stop."""
     clearance_cap: float = 1.5
     """Arc clearance above which the clearance term is 1 (m)."""
+    body_radius: float = 0.5
+    """Radius of the disc at the axle whose clearance the objective scores (m): the
+    footprint's half-width (see :func:`arc_clearances`)."""
     w_heading: float = 1.0
     w_clearance: float = 0.6
     w_speed: float = 0.3
@@ -256,16 +275,20 @@ def rollout(pose: Pose2, v: FloatArray, omega: FloatArray, params: DwaParams) ->
 
 def arc_clearances(
     poses: FloatArray, obstacles: Sequence[DiscLike], params: DwaParams
-) -> FloatArray:
-    """Footprint clearance to the nearest predicted disc at each pose: (N, K + 1).
+) -> tuple[FloatArray, FloatArray]:
+    """Clearances to the nearest predicted disc at each pose, both (N, K + 1).
 
-    The disc m is at ``position + velocity * t`` at the time t of pose k (``k * dt``);
-    the clearance is the distance from the robot's rectangle to the disc (negative when
-    they overlap; ``-radius`` when the centre is inside the rectangle). inf without discs.
+    The disc m is at ``position + velocity * t`` at the time t of pose k (``k * dt``).
+    First the footprint clearance: the distance from the robot's rectangle to the disc
+    (negative when they overlap; ``-radius`` when the centre is inside the rectangle).
+    Second the body clearance the objective scores: the distance from a disc of radius
+    ``body_radius`` at the axle, which unlike the rectangle's does not depend on the
+    heading (turning swings the rectangle's corners, which would put a local maximum of
+    the objective at "no turn" and trap a one-period window in it). inf without discs.
     """
     n, k1, _ = poses.shape
     if not obstacles:
-        return np.full((n, k1), np.inf)
+        return np.full((n, k1), np.inf), np.full((n, k1), np.inf)
     pos = np.array([o.position for o in obstacles], dtype=float)  # (M, 2)
     vel = np.array([o.velocity for o in obstacles], dtype=float)
     rad = np.array([o.radius for o in obstacles], dtype=float)
@@ -277,7 +300,9 @@ def arc_clearances(
     across = np.abs(-s * d[..., 0] + c * d[..., 1]) - 0.5 * params.width
     outside = np.hypot(np.maximum(along, 0.0), np.maximum(across, 0.0))
     inside = np.minimum(np.maximum(along, across), 0.0)  # <= 0: centre inside the box
-    return (outside + inside - rad[None, None, :]).min(axis=2)
+    footprint = (outside + inside - rad[None, None, :]).min(axis=2)
+    body = (np.hypot(d[..., 0], d[..., 1]) - rad[None, None, :]).min(axis=2)
+    return footprint, body - params.body_radius
 
 
 def dwa_choose(
@@ -292,7 +317,7 @@ def dwa_choose(
     p = params
     v, w = candidates(velocity, p)
     poses = rollout(pose, v, w, p)
-    clear = arc_clearances(poses, obstacles, p)  # (N, K + 1)
+    clear, body = arc_clearances(poses, obstacles, p)  # (N, K + 1) each
     now = clear[0, 0]
     threshold = min(p.margin, now - 1e-6) if math.isfinite(now) else p.margin
     below = clear[:, 1:] < threshold
@@ -312,7 +337,7 @@ def dwa_choose(
     bearing = np.arctan2(ty - end_y, tx - end_x) - end_theta
     bearing = np.abs((bearing + math.pi) % (2.0 * math.pi) - math.pi)
     heading = 1.0 - bearing / math.pi
-    clearance = np.clip(arc_clear, 0.0, p.clearance_cap) / p.clearance_cap
+    clearance = np.clip(body[:, 1:].min(axis=1), 0.0, p.clearance_cap) / p.clearance_cap
     speed = v / p.v_max
     score = p.w_heading * heading + p.w_clearance * clearance + p.w_speed * speed
     free = ~hit
@@ -408,8 +433,10 @@ class DwaAvoidance(Controller):
         super().__init__(name)
         self.goal, self.session, self.period = goal, session, period
         self.platform = platform
-        base = params or DwaParams(window=period)
-        self.params = base.within(platform)
+        self.params = (params or DwaParams()).within(platform)
+        self.every = max(1, round(self.params.window / period))
+        """Ticks per DWA period: the command is held in between."""
+        self._tick = 0
         self.release_margin = release_margin
         self.sensing_range = sensing_range
         self.static_speed = static_speed
@@ -426,6 +453,7 @@ class DwaAvoidance(Controller):
             self.velocity = self._limit(v, w)
         else:
             self.velocity = (0.0, 0.0)
+        self._tick = 0
 
     def _limit(self, v: float, w: float) -> tuple[float, float]:
         p = self.params
@@ -459,16 +487,18 @@ class DwaAvoidance(Controller):
         pose_a = pose.pose_a
         target = self.goal.in_airport(pose)
         target_xy = np.array([target.x, target.y])
-        choice = dwa_choose(
-            pose_a, self.velocity, target_xy, self.discs(obstacles, pose_a), self.params
-        )
-        self.last = choice
-        self.velocity = self._limit(choice.v, choice.omega)
+        if self._tick % self.every == 0 or self.last is None:
+            choice = dwa_choose(
+                pose_a, self.velocity, target_xy, self.discs(obstacles, pose_a), self.params
+            )
+            self.last = choice
+            self.velocity = self._limit(choice.v, choice.omega)
+            self.feedback_message = (
+                f"DWA {choice.mode}: v {choice.v:.2f} m/s, omega {choice.omega:.2f} rad/s, "
+                f"clearance {choice.clearance:.2f} m, {choice.n_free} free arcs"
+            )
+        self._tick += 1
         self.write(COMMAND, VelocityCommand(*self.velocity))
-        self.feedback_message = (
-            f"DWA {choice.mode}: v {choice.v:.2f} m/s, omega {choice.omega:.2f} rad/s, "
-            f"clearance {choice.clearance:.2f} m, {choice.n_free} free arcs"
-        )
         self._check_release(obstacles, pose_a, target_xy)
         return Status.RUNNING
 

@@ -41,6 +41,7 @@ from shapely.ops import unary_union
 from behaviours.base import Controller, Guard, Node
 from behaviours.controllers.avoidance import (
     DODGE,
+    REPLAN,
     SPIRAL,
     AvoidanceParams,
     AvoidancePolicy,
@@ -49,6 +50,7 @@ from behaviours.controllers.avoidance import (
     AvoidObstacle,
     DodgeObstacle,
 )
+from behaviours.controllers.fallback import FollowPlannedPath
 from behaviours.controllers.inspection import InspectItems, SetProgress, StartMission
 from behaviours.controllers.motion import (
     CorrectCameraAngle,
@@ -133,6 +135,8 @@ class CompileOptions:
     """Avoid obstacles on the way with the spiral controller (issue #6, in progress: off by
     default until it is tuned in sim2d; the e-stop and the safety layer's slowdown handle
     obstacles meanwhile)."""
+    avoidance_params: AvoidanceParams | None = None
+    """Tuning of the avoidance policy (r_OA and the corridor come from the mission)."""
     avoider: AvoiderFactory | None = None
     """Builds the avoidance controller (default :class:`AvoidObstacle`, the spiral)."""
     register_aircraft: bool = True
@@ -257,13 +261,20 @@ class _Builder:
         if not (self.options.avoidance and m.platform.lasers):
             return []
         margin = 0.5 * m.platform.width + m.safety.r_es + AVOIDANCE_PATH_MARGIN
-        policy = AvoidancePolicy(goal, AvoidanceParams(r_oa=m.safety.r_oa_trigger, margin=margin))
+        params = dataclasses.replace(
+            self.options.avoidance_params or AvoidanceParams(),
+            r_oa=m.safety.r_oa_trigger,
+            margin=margin,
+        )
+        policy = AvoidancePolicy(goal, params)
         self.avoidance_policies.append(policy)
         session, make = policy.session, self.options.avoider
         dodge = (make or DodgeObstacle)(goal, session, m.platform, self.period)
         spiral = (make or AvoidObstacle)(goal, session, m.platform, self.period)
+        replan = FollowPlannedPath(goal, session, m, self.period, self.params)
         return [
             GuardedBranch(f"dodge {label}", AvoidanceTrigger(policy, DODGE), dodge),
+            GuardedBranch(f"replan {label}", AvoidanceTrigger(policy, REPLAN), replan),
             GuardedBranch(f"avoid {label}", AvoidanceTrigger(policy, SPIRAL), spiral),
         ]
 

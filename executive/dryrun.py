@@ -22,11 +22,13 @@ import shapely
 from shapely.geometry import Polygon as ShapelyPolygon
 
 from behaviours.controllers.avoidance import (
+    AvoidanceParams,
     AvoiderFactory,
     AvoidObstacle,
     DodgeObstacle,
     obstacle_in_airport,
 )
+from behaviours.controllers.fallback import FollowPlannedPath
 from behaviours.keys import OBSTACLES, POSE, PROGRESS, MissionProgress
 from executive.compiler import CompileOptions, compile_mission
 from executive.core.frames import AircraftPlacement, Pose2, wrap_angle
@@ -190,7 +192,7 @@ class _Watcher:
         self,
         robot: SimRobot,
         scenario: Scenario,
-        avoiders: Sequence[AvoidObstacle | DodgeObstacle] = (),
+        avoiders: Sequence[AvoidObstacle | DodgeObstacle | FollowPlannedPath] = (),
     ) -> None:
         self.robot = robot
         self.avoiders = list(avoiders)
@@ -455,6 +457,7 @@ def dry_run(
     robot: SimRobot | None = None,
     avoidance: bool = False,
     avoider: AvoiderFactory | None = None,
+    avoidance_params: AvoidanceParams | None = None,
 ) -> DryRun:
     """Run the scenario's mission with the executive in sim2d and judge it."""
     mission = scenario.mission
@@ -472,6 +475,7 @@ def dry_run(
         resume=resumed,
         avoidance=avoidance,
         avoider=avoider,
+        avoidance_params=avoidance_params,
     )
     compiled = compile_mission(mission, options)
     safety = SafetyLayer(
@@ -486,7 +490,9 @@ def dry_run(
         if resumed is not None:
             journal.resume_from(resumed)
     avoiders = [
-        n for n in compiled.root.iterate() if isinstance(n, AvoidObstacle | DodgeObstacle)
+        n
+        for n in compiled.root.iterate()
+        if isinstance(n, AvoidObstacle | DodgeObstacle | FollowPlannedPath)
     ]
     watcher = _Watcher(robot, scenario, avoiders)
     show = _Progress(progress_out, len(mission.checkpoints))

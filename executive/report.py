@@ -74,6 +74,7 @@ def metrics(run: DryRun) -> dict[str, object]:
         "geofence_breaches": [{"t": round(t, 2), "zone": z} for t, z in run.breaches],
         "localisation": localisation_metrics(run),
         "obstacle_tracking": tracking_metrics(run),
+        "avoidance": avoidance_metrics(run),
         "tick_timing": result.stats.summary(),
         "warnings": run.warnings,
         "resumed_after": list(run.resumed_from),
@@ -144,6 +145,36 @@ def tracking_metrics(run: DryRun) -> dict[str, object]:
     }
 
 
+AVOIDANCE_CONTROLLERS = ("spiral", "velocity obstacles", "fallback planner")
+
+
+def avoidance_metrics(run: DryRun) -> dict[str, object]:
+    """Obstacle avoidance: engagements, switches by mode and reason, clearance while
+    avoiding (the true distance from the footprint to the nearest shape)."""
+    switches = [e for e in run.result.events if e.kind == "controller"]
+    engaged = [
+        e
+        for e in switches
+        if str(e.detail.get("to", "")).startswith(AVOIDANCE_CONTROLLERS)
+        and not str(e.detail.get("from", "")).startswith(AVOIDANCE_CONTROLLERS)
+    ]
+    by_mode: dict[str, int] = {}
+    for e in switches:
+        to = str(e.detail.get("to", ""))
+        if to.startswith(AVOIDANCE_CONTROLLERS):
+            kind = controller_kind(to)
+            by_mode[kind] = by_mode.get(kind, 0) + 1
+    samples = run.avoidance
+    clearances = [a.clearance for a in samples if math.isfinite(a.clearance)]
+    return {
+        "engagements": len(engaged),
+        "episodes": len({a.episode for a in samples}),
+        "switches_to": by_mode,
+        "time_s": round(len(samples) / TRUTH_RATE_HZ, 1),
+        "min_clearance": round(min(clearances), 3) if clearances else None,
+    }
+
+
 def write_report(run: DryRun, out: Path) -> Path:
     """Write the report folder; returns its path."""
     out.mkdir(parents=True, exist_ok=True)
@@ -153,6 +184,7 @@ def write_report(run: DryRun, out: Path) -> Path:
             handle.write(json.dumps(event.as_dict(), separators=(",", ":")) + "\n")
     trajectory(run, out / "trajectory.png")
     timeline(run, out / "timeline.png")
+    avoidance_plot(run, out / "avoidance.png")
     return out
 
 
@@ -166,6 +198,8 @@ KINDS = (
     ("operator", "operator control"),
     ("hold: relocalise", "relocalise (registration)"),
     ("spiral", "spiral avoidance"),
+    ("velocity obstacles", "velocity obstacles"),
+    ("fallback planner", "fallback planner"),
 )
 
 
@@ -325,6 +359,46 @@ def timeline(run: DryRun, path: Path) -> None:
     axes[4].set_xlabel("simulated time (s)")
     for ax in axes:
         ax.grid(True, lw=0.3, alpha=0.5)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def avoidance_plot(run: DryRun, path: Path) -> None:
+    """alpha_d, xi, beta_c, e_alpha, e_r (the spiral's, eqs. 4.1-4.16) and the true
+    clearance against the time since each avoidance began, one colour per episode;
+    velocity-obstacle and planner ticks show in the clearance panel only. No file when
+    the run avoided nothing."""
+    samples = run.avoidance
+    if not samples:
+        return
+    episodes = sorted({a.episode for a in samples})
+    rows = (
+        ("alpha_d (deg)", lambda a: math.degrees(a.alpha_d)),
+        ("xi (m/s)", lambda a: a.xi),
+        ("beta_c (deg)", lambda a: math.degrees(a.beta_c)),
+        ("e_alpha (deg)", lambda a: math.degrees(a.e_alpha)),
+        ("e_r (m)", lambda a: a.e_r),
+        ("clearance (m)", lambda a: a.clearance),
+    )
+    fig, axes = plt.subplots(len(rows), 1, figsize=(11, 12), dpi=100, sharex=True)
+    for k, episode in enumerate(episodes):
+        ep = [a for a in samples if a.episode == episode]
+        t = np.array([a.t for a in ep]) - ep[0].t
+        modes = sorted({a.mode for a in ep})
+        label = f"#{episode} at {ep[0].t:.0f} s ({', '.join(modes)})"
+        for ax, (_, value) in zip(axes, rows, strict=True):
+            ax.plot(t, [value(a) for a in ep], lw=0.8, color=PALETTE(k % 10), label=label)
+    safety = run.scenario.mission.safety
+    axes[-1].axhline(safety.r_es, color="red", ls="--", lw=0.8)
+    axes[2].axhline(90.0, color="grey", ls=":", lw=0.8)
+    axes[2].axhline(270.0, color="grey", ls=":", lw=0.8)
+    for ax, (name, _) in zip(axes, rows, strict=True):
+        ax.set_ylabel(name, fontsize=8)
+        ax.grid(True, lw=0.3, alpha=0.5)
+    axes[0].legend(fontsize=6, loc="upper right", ncol=2)
+    axes[-1].set_xlabel("time since the avoidance began (s)")
+    fig.suptitle("obstacle avoidance episodes (spiral quantities; NaN for VO / planner)")
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)

@@ -1,13 +1,15 @@
-"""Issue 6 (in progress): the spiral obstacle avoidance drives the simulated robot.
-
-Opt-in (``CompileOptions.avoidance``) until the campaign of issue 6 is run; this test
-shows the wiring works in sim2d on the thesis's 40 m track with its two static obstacles.
-"""
+"""Issue 6 end to end: obstacle avoidance drives the simulated robot through the shipped
+scenarios — the thesis's 40 m run (two static, two moving obstacles, one adversarial), a
+concave trap left with the fallback planner, and the A320 pre-flight on the busy apron
+and with the adversarial trolley."""
 
 import pytest
 
+from behaviours.controllers.avoidance import AvoidanceParams
 from executive.dryrun import dry_run
-from executive.report import metrics
+from executive.report import metrics, write_report
+from sim2d.scenario import load_scenario
+from tests.conftest import MISSIONS
 from tests.sim2d_helpers import make_scenario
 
 pytestmark = pytest.mark.slow
@@ -19,20 +21,97 @@ STATIC = (
     "</obstacles>"
 )
 
+# A U of three walls 4.6 m wide and 4 m deep, open towards the robot, across the track:
+# the spiral round its back wall makes no progress towards the goal behind it.
+U_TRAP = (
+    "<obstacles>"
+    '<box id="u-back" kind="equipment" x="14.2" y="0" heading-deg="0" length="0.4"'
+    ' width="5.4" height="1.0"/>'
+    '<box id="u-left" kind="equipment" x="12" y="2.5" heading-deg="0" length="4.0"'
+    ' width="0.4" height="1.0"/>'
+    '<box id="u-right" kind="equipment" x="12" y="-2.5" heading-deg="0" length="4.0"'
+    ' width="0.4" height="1.0"/>'
+    "</obstacles>"
+)
+
+
+def switches(run, to: str) -> list:
+    return [
+        e
+        for e in run.result.events
+        if e.kind == "controller" and str(e.detail["to"]).startswith(to)
+    ]
+
+
+def assert_succeeded(run, report) -> None:
+    assert run.result.outcome == "completed", run.result.reason
+    assert not report["collisions"], report["collisions"]
+    assert not report["geofence_breaches"], report["geofence_breaches"]
+    assert report["checkpoints_reached"] == report["checkpoints_total"]
+    assert report["max_position_error"] < 0.15
+
 
 def test_spiral_avoidance_around_the_two_static_obstacles_of_the_40_m_run(tmp_path):
     scenario = make_scenario(tmp_path, STATIC, mission_type="track", mission="straight-run.xml")
     run = dry_run(scenario, avoidance=True)
     report = metrics(run)
-    assert run.result.outcome == "completed", run.result.reason
-    assert not report["collisions"] and not report["geofence_breaches"]
+    assert_succeeded(run, report)
     assert report["estops"] == 0
     assert report["min_clearance"] > 1.0
-    assert report["checkpoints_reached"] == 1
-    assert report["max_position_error"] < 0.15
-    switches = [e for e in run.result.events if e.kind == "controller"]
-    engaged = [e for e in switches if e.detail["to"].startswith("spiral")]
-    released = [e for e in switches if e.detail["from"].startswith("spiral")]
+    engaged = switches(run, "spiral")
+    released = [
+        e
+        for e in run.result.events
+        if e.kind == "controller" and str(e.detail["from"]).startswith("spiral")
+    ]
     assert len(engaged) == 4  # car and bin, out and back: no re-trigger loop
     assert all("r_OA" in e.detail["reason"] for e in engaged)
     assert len(released) == 4
+    assert all("released" in e.detail["reason"] for e in released)
+    assert report["avoidance"]["engagements"] == 4
+
+
+def test_the_40_m_run_with_two_static_and_two_moving_obstacles(tmp_path):
+    """The shipped scenario: car, bin, a trolley crossing and an adversarial trolley that
+    steers at the robot (seed lines 4240-4385)."""
+    scenario = load_scenario(MISSIONS / "track" / "scenarios" / "straight-run-40m.xml")
+    run = dry_run(scenario, avoidance=True)
+    report = metrics(run)
+    assert_succeeded(run, report)
+    assert report["estops"] == 0
+    assert report["min_clearance"] > 0.3
+    dodges = switches(run, "velocity obstacles")
+    assert dodges, "the adversarial trolley is avoided with velocity obstacles"
+    assert any("closing in" in e.detail["reason"] or "m/s" in e.detail["reason"] for e in dodges)
+    avoidance = report["avoidance"]
+    assert avoidance["engagements"] >= 4 and avoidance["min_clearance"] > 0.3
+    folder = write_report(run, tmp_path / "report")
+    assert (folder / "avoidance.png").stat().st_size > 10_000
+
+
+def test_a_concave_trap_is_left_with_the_fallback_planner(tmp_path):
+    scenario = make_scenario(tmp_path, U_TRAP, mission_type="track", mission="straight-run.xml")
+    run = dry_run(scenario, avoidance=True, avoidance_params=AvoidanceParams(trapped_after=10.0))
+    report = metrics(run)
+    assert_succeeded(run, report)
+    assert report["estops"] == 0
+    planned = switches(run, "fallback planner")
+    assert planned and all("trapped" in e.detail["reason"] for e in planned)
+    ended = [
+        e
+        for e in run.result.events
+        if e.kind == "controller" and str(e.detail["from"]).startswith("fallback planner")
+    ]
+    assert any("end of the planned path" in e.detail["reason"] for e in ended)
+
+
+@pytest.mark.parametrize("name", ["busy-apron", "adversarial-trolley"])
+def test_a320_preflight_with_avoidance(name, tmp_path):
+    scenario = load_scenario(MISSIONS / "a320" / "scenarios" / f"{name}.xml")
+    run = dry_run(scenario, avoidance=True)
+    report = metrics(run)
+    assert_succeeded(run, report)
+    avoidance = report["avoidance"]
+    assert avoidance["engagements"] >= 1
+    assert avoidance["min_clearance"] is not None and avoidance["min_clearance"] > 0.0
+    assert report["min_clearance"] > 0.0

@@ -73,6 +73,7 @@ def obstacle_in_airport(track: TrackedObstacle, pose_a: Pose2) -> SpiralObstacle
 
 SPIRAL = "spiral"
 DODGE = "velocity obstacles"
+REPLAN = "fallback planner"
 
 
 @dataclass
@@ -91,6 +92,9 @@ class AvoidanceSession:
     margin: float = 1.4
     """Half-width of the corridor robot -> goal (the policy's; the spiral's release uses
     the same, so engage and release stay exclusive)."""
+    best_distance: float = math.inf
+    best_at: float = 0.0
+    """Closest the robot came to the goal during this avoidance, and when (trap check)."""
 
 
 class AvoiderFactory(Protocol):
@@ -128,6 +132,20 @@ class AvoidanceParams:
     closer than r_OA / 2: no re-trigger loop on a noisy boundary."""
     speed_time_constant: float = 0.5
     """Low-pass filter of each track's observable speed (s)."""
+    large_size: float = 1.0
+    """Obstacles larger than this (enclosing radius, m: vehicles, structures)..."""
+    large_speed_allowance: float = 0.4
+    """...have this much of their speed discounted (m/s): as the robot moves round a big
+    static obstacle its visible part, hence its tracked centroid, slides by up to
+    ~0.3 m/s; a vehicle that really moves is faster than that."""
+    anticipation: float = 2.0
+    """An obstacle moving onto the path engages this many seconds of its motion before
+    r_OA-trigger (s): a trolley at 0.7 m/s is met 1.4 m earlier."""
+    trapped_after: float = 20.0
+    """A spiral that brings the robot no ``progress`` closer to the goal for this long is
+    trapped: the fallback planner takes over (s; inf: never)."""
+    progress: float = 0.5
+    """Distance gain towards the goal that counts as progress (m)."""
 
 
 class AvoidancePolicy:
@@ -173,10 +191,13 @@ class AvoidancePolicy:
     ) -> None:
         """Low-pass the observable speed of each track (a noisy estimate must not flip the
         mode every tick)."""
-        gain = min(1.0, max(dt, 0.0) / self.params.speed_time_constant)
+        p = self.params
+        gain = min(1.0, max(dt, 0.0) / p.speed_time_constant)
         speeds = {}
-        for ident, (_, obstacle) in candidates.items():
+        for ident, (track, obstacle) in candidates.items():
             measured = obstacle.observable_speed
+            if track.size > p.large_size:  # partial views slide a big centroid
+                measured = max(0.0, measured - p.large_speed_allowance)
             previous = self._speeds.get(ident)
             speeds[ident] = (
                 measured if previous is None else previous + gain * (measured - previous)
@@ -198,6 +219,8 @@ class AvoidancePolicy:
         if session.obstacle_id is not None:
             if session.released:
                 return self._end(now, session.reason)
+            if session.mode == REPLAN:
+                return REPLAN  # the planner ends it (session.released)
             current = candidates.get(session.obstacle_id)
             if current is None:
                 session.missing_since = session.missing_since or now
@@ -208,9 +231,18 @@ class AvoidancePolicy:
             track, obstacle = current
             blocked = path_blocked(robot, target_xy, obstacle, p.margin)
             if session.mode == SPIRAL:
+                distance = float(np.hypot(*(target_xy - robot)))
+                if distance < session.best_distance - p.progress:
+                    session.best_distance, session.best_at = distance, now
+                if now - session.best_at > p.trapped_after:
+                    return self._switch(
+                        REPLAN,
+                        track,
+                        f"trapped: no progress towards the goal for {p.trapped_after:.0f} s",
+                    )
                 if speed[track.id] > p.fast_speed:
                     return self._switch(DODGE, track, f"it moves at {speed[track.id]:.2f} m/s")
-                threat = self._threat(candidates, robot, target_xy, now, faster_than=p.fast_speed)
+                threat = self._threat(candidates, robot, target_xy, now, p.fast_speed)
                 if threat is not None and threat[0].id != track.id:
                     other = threat[0]
                     return self._switch(
@@ -227,18 +259,20 @@ class AvoidancePolicy:
             if now - session.clear_since >= p.clear_after:
                 return self._end(now, "obstacle off the path")
             return DODGE
-        if float(np.hypot(*(target_xy - robot))) < p.margin:
-            self.message = "at the goal"
-            return None
-        threat = self._threat(candidates, robot, target_xy, now, faster_than=None)
+        # at the goal nothing lies "on the way" any more; only an obstacle moving in counts
+        at_goal = float(np.hypot(*(target_xy - robot))) < p.margin
+        threat = self._threat(candidates, robot, target_xy, now, None, moving_only=at_goal)
         if threat is None:
-            self.message = f"way clear (r_c {obstacles.closest_any:.2f} m)"
+            self.message = (
+                "at the goal" if at_goal else f"way clear (r_c {obstacles.closest_any:.2f} m)"
+            )
             return None
         track, obstacle = threat
         mode = DODGE if speed[track.id] > p.fast_speed else SPIRAL
         session.obstacle_id, session.mode, session.engaged_at = track.id, mode, now
         session.released, session.reason = False, ""
         session.missing_since = session.clear_since = None
+        session.best_distance, session.best_at = float(np.hypot(*(target_xy - robot))), now
         session.count += 1
         self.message = (
             f"obstacle {track.id} ({track.kind}, {speed[track.id]:.2f} m/s) "
@@ -253,22 +287,27 @@ class AvoidancePolicy:
         target_xy: np.ndarray,
         now: float,
         faster_than: float | None,
+        moving_only: bool = False,
     ) -> tuple[TrackedObstacle, SpiralObstacle] | None:
         """The closest obstacle under r_OA on the way or moving onto the path (one just
         released is ignored for ``hold_off`` s unless it comes closer than r_OA / 2)."""
         p = self.params
         best: tuple[TrackedObstacle, SpiralObstacle] | None = None
         for track, obstacle in candidates.values():
-            if track.clearance >= p.r_oa:
-                continue
             speed = self._speeds[track.id]
+            moving_in = track.danger >= Danger.ON_PATH and speed > p.slow_speed
+            # an obstacle moving in is met earlier: r_OA plus anticipation x its speed
+            reach = p.r_oa + (p.anticipation * speed if moving_in else 0.0)
+            if track.clearance >= reach:
+                continue
             if faster_than is not None and speed <= faster_than:
                 continue
             released = self._released.get(track.id)
             held_off = released is not None and now - released < p.hold_off
             if held_off and track.clearance >= 0.5 * p.r_oa:
                 continue
-            moving_in = track.danger >= Danger.ON_PATH and speed > p.slow_speed
+            if moving_only and not moving_in:
+                continue
             if not (moving_in or path_blocked(robot, target_xy, obstacle, p.margin)):
                 continue
             if best is None or track.clearance < best[0].clearance:
@@ -417,8 +456,9 @@ class DodgeObstacle(Controller):
     obstacle within the horizon, within one period of the platform's accelerations. Its
     top speed is ``escape_factor`` x the fastest obstacle's speed (at least the spiral's
     nu_max, at most the platform's max speed): a robot no faster than a trolley chasing
-    it cannot get away. Forbidden-zone walls count as static discs. The robot's disc is
-    its circumscribed circle plus ``margin``.
+    it cannot get away. Forbidden-zone walls count as static discs: the virtual wall
+    points near the robot, one every ``zone_spacing`` metres. The robot's disc is its
+    circumscribed circle plus ``margin``.
     """
 
     reads = (OBSTACLES, POSE)
@@ -434,12 +474,14 @@ class DodgeObstacle(Controller):
         escape_factor: float = 2.0,
         margin: float = 0.3,
         reach: float = 8.0,
+        zone_spacing: float = 0.4,
         name: str = "velocity obstacles",
     ) -> None:
         super().__init__(name)
         self.goal, self.session, self.period = goal, session, period
         self.platform, self.nu_min = platform, nu_min
         self.escape_factor, self.reach = escape_factor, reach
+        self.zone_spacing = zone_spacing
         self.radius = 0.5 * math.hypot(platform.length, platform.width) + margin
         self.limiter = _rate_limiter(platform)
         self.last: VelocityChoice | None = None
@@ -457,7 +499,11 @@ class DodgeObstacle(Controller):
             self.feedback_message = "no pose or obstacles: braking"
             return Status.RUNNING
         robot = pose.pose_a
-        near = [obstacle_in_airport(t, robot) for t in obstacles.tracks if t.clearance < self.reach]
+        near = [
+            obstacle_in_airport(t, robot)
+            for t in obstacles.tracks
+            if t.clearance < self.reach and t.kind != "zone"
+        ]
         fastest = max((o.speed for o in near), default=0.0)
         v_max = min(self.platform.max_speed, max(self.nu_min, self.escape_factor * fastest))
         params = VoParams(
@@ -471,6 +517,7 @@ class DodgeObstacle(Controller):
         error = wrap_angle(bearing - robot.theta)
         preferred = (v_max * max(0.0, math.cos(error)), max(-1.0, min(1.0, 1.5 * error)))
         discs = tuple(d for o in near for d in obstacle_discs(o))
+        discs += self._zone_discs(obstacles, robot)
         # the whole velocity range, not one period's window: a velocity obstacle assumes
         # the chosen velocity is held, and the rate limiter below gets there
         choice = choose_velocity(
@@ -484,3 +531,19 @@ class DodgeObstacle(Controller):
             f"{'clear' if choice.feasible else f'contact in {choice.time_to_collision:.1f} s'}"
         )
         return Status.RUNNING
+
+    def _zone_discs(self, obstacles: Obstacles, robot: Pose2) -> tuple[MovingDisc, ...]:
+        virtual = obstacles.virtual
+        if len(virtual) == 0:
+            return ()
+        near = virtual[np.hypot(virtual[:, 0], virtual[:, 1]) < self.reach]
+        if len(near) == 0:
+            return ()
+        # thin to about one point per zone_spacing along the walls
+        keep = [0]
+        for k in range(1, len(near)):
+            if float(np.hypot(*(near[k] - near[keep[-1]]))) >= self.zone_spacing:
+                keep.append(k)
+        points = robot.apply(near[keep])
+        radius = 0.5 * self.zone_spacing
+        return tuple(MovingDisc((float(x), float(y)), (0.0, 0.0), radius) for x, y in points)

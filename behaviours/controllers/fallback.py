@@ -1,0 +1,176 @@
+"""The fallback of the spiral avoidance when trapped: plan on a costmap, follow with
+go-to-goal (issue 6; the thesis leaves concave traps to future work, seed lines 4170-4240).
+
+A thin adapter over :mod:`behaviours.laws.costmap` and :mod:`behaviours.laws.go_to_goal`.
+When the avoidance policy declares the robot trapped (no progress towards the goal for a
+while), :class:`FollowPlannedPath` builds a costmap around the robot and the goal from
+
+* the laser returns of the last scans (both scanners, in A with the pose estimate),
+* the virtual zone-wall points and every forbidden zone's outline,
+* the aircraft's footprint placed with the current placement estimate,
+
+inflates it by the robot's circumscribed radius plus r_ES, and runs A* in a worker thread (a plan
+takes 0.05-0.3 s: far longer than a 20 ms tick). The result is applied a fixed
+``plan_delay`` after the request, waiting for the worker if needed, so dry-runs stay
+deterministic; the robot stands still meanwhile. It then drives the waypoints one after
+the other with the go-to-goal law, and ends the avoidance (``session.released``) at the
+last one or when no path exists.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Iterable
+from concurrent.futures import Future, ThreadPoolExecutor
+
+import numpy as np
+import py_trees
+
+from behaviours.base import Controller
+from behaviours.controllers.avoidance import AvoidanceSession, _rate_limiter
+from behaviours.goals import Goal
+from behaviours.keys import COMMAND, OBSTACLES, POSE
+from behaviours.laws.costmap import Costmap, PlannedPath
+from behaviours.laws.go_to_goal import GoToGoal, GoToGoalParams
+from executive.core.frames import AircraftPlacement, FloatArray, Pose2
+from executive.core.model import Frame, Mission
+from executive.core.records import Obstacles, PoseEstimate, VelocityCommand
+
+Status = py_trees.common.Status
+
+_WORKER = ThreadPoolExecutor(max_workers=1, thread_name_prefix="walkaround-planner")
+
+
+def known_polygons(mission: Mission, placement: AircraftPlacement) -> list[FloatArray]:
+    """The aircraft footprint and the forbidden zones as outlines in A."""
+    outlines: list[FloatArray] = [
+        placement.to_airport_xy(shape.vertices(48)) for shape in mission.aircraft.footprint
+    ]
+    for zone in mission.airport.zones:
+        pts = zone.shape.vertices(48)
+        outlines.append(placement.to_airport_xy(pts) if zone.frame is Frame.AIRCRAFT else pts)
+    return outlines
+
+
+def plan_path(
+    start: tuple[float, float],
+    goal: tuple[float, float],
+    points: FloatArray,
+    polygons: Iterable[FloatArray],
+    robot_radius: float,
+    clearance: float,
+    goal_tolerance: float,
+) -> PlannedPath | None:
+    """One planning request (runs in the worker)."""
+    costmap = Costmap.around(start, goal, margin=8.0, resolution=0.1)
+    costmap.add_points(points)
+    costmap.add_polygons(polygons)
+    costmap.inflate(robot_radius, clearance)
+    return costmap.plan(start, goal, goal_tolerance=goal_tolerance)
+
+
+class FollowPlannedPath(Controller):
+    """Plan around the trap on a costmap and follow the waypoints with go-to-goal."""
+
+    reads = (OBSTACLES, POSE)
+    writes = (COMMAND,)
+
+    def __init__(
+        self,
+        goal: Goal,
+        session: AvoidanceSession,
+        mission: Mission,
+        period: float,
+        params: GoToGoalParams,
+        plan_delay: float = 0.5,
+        waypoint_tolerance: float = 0.4,
+        name: str = "fallback planner",
+    ) -> None:
+        super().__init__(name)
+        self.goal, self.session, self.mission, self.period = goal, session, mission, period
+        platform = mission.platform
+        # a path cell keeps the robot's circumscribed circle r_ES (+ a little) clear of
+        # every obstacle, so following it never trips the e-stop
+        self.radius = 0.5 * math.hypot(platform.length, platform.width) + mission.safety.r_es + 0.15
+        self.params = dataclasses.replace(
+            params, position_tolerance=waypoint_tolerance, allow_reverse=False
+        )
+        self.plan_delay, self.waypoint_tolerance = plan_delay, waypoint_tolerance
+        self.limiter = _rate_limiter(platform)
+        self.path: PlannedPath | None = None
+        self._future: Future[PlannedPath | None] | None = None
+        self._apply_at = 0.0
+        self._next = 1
+        self._law: GoToGoal | None = None
+
+    def initialise(self) -> None:
+        self.path, self._future, self._next, self._law = None, None, 1, None
+        self.limiter.reset(0.0, 0.0)
+
+    def update(self) -> Status:
+        obstacles: Obstacles | None = self.read(OBSTACLES)
+        pose: PoseEstimate | None = self.read(POSE)
+        if obstacles is None or pose is None:
+            return self._hold("no pose or obstacles")
+        if self.path is None:
+            return self._await_plan(obstacles, pose)
+        waypoints = self.path.waypoints
+        robot = pose.pose_a
+        while self._next < len(waypoints) - 1 and (
+            math.hypot(*(waypoints[self._next] - (robot.x, robot.y))) < self.waypoint_tolerance
+        ):
+            self._next += 1
+        x, y = waypoints[self._next]
+        if self._next == len(waypoints) - 1 and math.hypot(x - robot.x, y - robot.y) < (
+            self.waypoint_tolerance
+        ):
+            self.session.released, self.session.reason = True, "end of the planned path"
+            return self._hold("end of the planned path")
+        heading = math.atan2(y - robot.y, x - robot.x)
+        if self._law is None:
+            self._law = GoToGoal(self.params)
+        out = self._law.command(
+            robot, Pose2(float(x), float(y), heading), goal_heading=False, dt=self.period
+        )
+        v, omega = self.limiter.step(out.v, out.omega, self.period)
+        self.write(COMMAND, VelocityCommand(v, omega))
+        self.feedback_message = f"waypoint {self._next}/{len(waypoints) - 1}"
+        return Status.RUNNING
+
+    def _await_plan(self, obstacles: Obstacles, pose: PoseEstimate) -> Status:
+        now = obstacles.stamp
+        if self._future is None:
+            robot = pose.pose_a
+            target = self.goal.in_airport(pose)
+            points = [robot.apply(obstacles.points)] if len(obstacles.points) else []
+            if len(obstacles.virtual):
+                points.append(robot.apply(obstacles.virtual))
+            cloud = np.vstack(points) if points else np.zeros((0, 2))
+            placement = pose.placement or self.goal.nominal
+            self._future = _WORKER.submit(
+                plan_path,
+                (robot.x, robot.y),
+                (target.x, target.y),
+                cloud,
+                known_polygons(self.mission, placement),
+                self.radius,
+                0.5,
+                0.3,
+            )
+            self._apply_at = now + self.plan_delay
+            return self._hold("planning")
+        if now < self._apply_at:
+            return self._hold("planning")
+        path = self._future.result()
+        if path is None:
+            self.session.released, self.session.reason = True, "no path on the costmap"
+            return self._hold("no path on the costmap")
+        self.path = path
+        return self._hold(f"planned {path.length:.1f} m, {len(path.waypoints) - 1} legs")
+
+    def _hold(self, why: str) -> Status:
+        v, omega = self.limiter.step(0.0, 0.0, self.period)
+        self.write(COMMAND, VelocityCommand(v, omega))
+        self.feedback_message = why
+        return Status.RUNNING
