@@ -171,6 +171,23 @@ def test_chaser_steers_towards_the_robot(tmp_path):
     assert x == pytest.approx(-54.0, abs=0.1) and y == pytest.approx(10.0, abs=0.05)
 
 
+def test_chaser_gives_up_after_its_pursuit_time_and_goes_back(tmp_path):
+    body = start(-60, 10, 0) + (
+        '<obstacles><chaser id="trolley" kind="trolley" x="-50" y="10" length="1.2"'
+        ' width="0.8" height="1" speed="0.8" pursuit="3"/></obstacles>'
+    )
+    robot = SimRobot(make_scenario(tmp_path, body))
+    robot.advance(3.0)
+    _, x, _, _ = robot.truth.obstacles[0]
+    assert x == pytest.approx(-52.4, abs=0.1)  # chased for 3 s
+    robot.advance(5.0)
+    _, x, y, _ = robot.truth.obstacles[0]
+    assert (x, y) == (pytest.approx(-50.0, abs=0.06), pytest.approx(10.0, abs=0.05))  # back
+    robot.advance(5.0)
+    _, x2, _, _ = robot.truth.obstacles[0]
+    assert x2 == pytest.approx(x, abs=1e-6)  # and stays: never triggered again
+
+
 def test_camera_sees_target_and_obstacle_occludes_it(tmp_path):
     # CP01 of the A320 mission: F (6.5, 5.0) heading -90 is A (-5, -6.5) facing east.
     clear = SimRobot(make_scenario(tmp_path, start(-5, -6.5, 0) + NO_NOISE, name="c.xml"))

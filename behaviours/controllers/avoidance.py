@@ -475,13 +475,14 @@ class DodgeObstacle(Controller):
         margin: float = 0.3,
         reach: float = 8.0,
         zone_spacing: float = 0.4,
+        reverse_max: float = 1.0,
         name: str = "velocity obstacles",
     ) -> None:
         super().__init__(name)
         self.goal, self.session, self.period = goal, session, period
         self.platform, self.nu_min = platform, nu_min
         self.escape_factor, self.reach = escape_factor, reach
-        self.zone_spacing = zone_spacing
+        self.zone_spacing, self.reverse_max = zone_spacing, reverse_max
         self.radius = 0.5 * math.hypot(platform.length, platform.width) + margin
         self.limiter = _rate_limiter(platform)
         self.last: VelocityChoice | None = None
@@ -506,7 +507,10 @@ class DodgeObstacle(Controller):
         ]
         fastest = max((o.speed for o in near), default=0.0)
         v_max = min(self.platform.max_speed, max(self.nu_min, self.escape_factor * fastest))
+        # reversing is allowed (both lasers watch): a unicycle cannot turn round in time
+        # to flee an obstacle coming at it from ahead
         params = VoParams(
+            v_min=-min(v_max, self.reverse_max),
             v_max=v_max,
             omega_max=self.platform.max_angular_speed,
             robot_radius=self.radius,

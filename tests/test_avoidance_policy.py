@@ -1,0 +1,157 @@
+"""The avoidance policy (which obstacle, which mode, when it ends) on synthetic tracks,
+the velocity-obstacle controller's discs, and the adversarial trolley's give-up."""
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from behaviours.controllers.avoidance import (
+    DODGE,
+    REPLAN,
+    SPIRAL,
+    AvoidanceParams,
+    AvoidancePolicy,
+    obstacle_discs,
+)
+from behaviours.goals import Goal
+from behaviours.laws.spiral import SpiralObstacle
+from executive.core.frames import Pose2
+from executive.core.model import Frame
+from executive.core.records import Danger, Obstacles, PoseEstimate, TrackedObstacle
+
+GOAL = Goal(Pose2(20.0, 0.0, 0.0), Frame.AIRPORT)
+
+
+def pose(x: float = 0.0, y: float = 0.0, theta: float = 0.0, t: float = 0.0) -> PoseEstimate:
+    p = Pose2(x, y, theta)
+    return PoseEstimate(t, p, np.eye(3) * 1e-4, p, 1.0)
+
+
+def track(
+    ident: int,
+    x: float,
+    y: float,
+    *,
+    v: tuple[float, float] = (0.0, 0.0),
+    size: float = 0.4,
+    kind: str = "circle",
+    danger: Danger = Danger.NONE,
+    robot: Pose2 = Pose2(0.0, 0.0, 0.0),
+) -> TrackedObstacle:
+    """A track given in A for a robot at ``robot`` (converted to the robot frame)."""
+    local = robot.inverse().apply(np.array([x, y]))
+    c, s = math.cos(-robot.theta), math.sin(-robot.theta)
+    vr = (c * v[0] - s * v[1], s * v[0] + c * v[1])
+    clearance = max(0.0, math.hypot(*local) - size - 0.7)
+    shape = (float(local[0]), float(local[1]), size) if kind == "circle" else ()
+    return TrackedObstacle(
+        ident, kind, (float(local[0]), float(local[1])), vr, np.eye(4), size, clearance, 2.0,
+        danger, shape,
+    )  # fmt: skip
+
+
+def obstacles(t: float, *tracks: TrackedObstacle) -> Obstacles:
+    closest = min((tr.clearance for tr in tracks), default=math.inf)
+    return Obstacles(t, closest, 0.0, np.zeros((0, 2)), tracks)
+
+
+def run(policy: AvoidancePolicy, frames) -> list[str | None]:
+    return [policy.decide(obstacles(t, *tracks), est) for t, est, tracks in frames]
+
+
+def test_an_obstacle_on_the_way_engages_the_spiral_one_beside_it_does_not():
+    policy = AvoidancePolicy(GOAL, AvoidanceParams())
+    assert policy.decide(obstacles(0.0, track(1, 3.0, 3.5)), pose()) is None  # beside
+    assert policy.decide(obstacles(0.1, track(1, 3.0, 3.5), track(2, 3.5, 0.2)), pose()) == SPIRAL
+    assert policy.session.obstacle_id == 2 and "on the way" in policy.message
+    far = AvoidancePolicy(GOAL, AvoidanceParams())
+    assert far.decide(obstacles(0.0, track(2, 6.0, 0.0)), pose()) is None  # beyond r_OA
+
+
+def test_a_fast_obstacle_is_dodged_and_a_slow_one_spiralled():
+    fast = AvoidancePolicy(GOAL, AvoidanceParams())
+    assert fast.decide(obstacles(0.0, track(1, 3.0, 0.0, v=(-0.8, 0.0))), pose()) == DODGE
+    slow = AvoidancePolicy(GOAL, AvoidanceParams())
+    assert slow.decide(obstacles(0.0, track(1, 3.0, 0.0, v=(0.1, 0.0))), pose()) == SPIRAL
+
+
+def test_a_trolley_coming_from_the_side_engages_early_and_even_at_the_goal():
+    side = track(1, 3.0, 4.0, v=(0.0, -0.7), danger=Danger.ON_PATH)
+    assert side.clearance > 2.5  # beyond r_OA, but met 2 s of its motion earlier
+    policy = AvoidancePolicy(GOAL, AvoidanceParams())
+    assert policy.decide(obstacles(0.0, side), pose()) == DODGE
+    at_goal = AvoidancePolicy(GOAL, AvoidanceParams())
+    robot = pose(19.5, 0.0)
+    parked = track(2, 21.5, 0.0, robot=robot.pose_a)
+    coming = track(3, 19.5, 3.0, v=(0.0, -0.7), danger=Danger.IMMINENT, robot=robot.pose_a)
+    assert at_goal.decide(obstacles(0.0, parked), robot) is None
+    assert at_goal.message == "at the goal"
+    assert at_goal.decide(obstacles(0.1, parked, coming), robot) == DODGE
+
+
+def test_velocity_obstacles_end_once_the_obstacle_is_off_the_path():
+    policy = AvoidancePolicy(GOAL, AvoidanceParams(clear_after=1.0))
+    assert policy.decide(obstacles(0.0, track(1, 3.0, 0.0, v=(0.0, 0.8))), pose()) == DODGE
+    gone = track(1, 3.0, 3.0, v=(0.0, 0.8))
+    modes, messages = [], []
+    for k in range(1, 15):
+        modes.append(policy.decide(obstacles(0.1 * k, gone), pose()))
+        messages.append(policy.message)
+    assert modes[:9] == [DODGE] * 9 and modes[-1] is None
+    assert "off the path" in messages[modes.index(None)]
+
+
+def test_a_released_obstacle_does_not_engage_again_at_once():
+    """No re-trigger loop (figure 4.15): after a release the same obstacle is held off."""
+    policy = AvoidancePolicy(GOAL, AvoidanceParams(hold_off=3.0))
+    blocking = track(1, 3.5, 0.0)
+    assert policy.decide(obstacles(0.0, blocking), pose()) == SPIRAL
+    policy.session.released, policy.session.reason = True, "beta_c past the release angle"
+    assert policy.decide(obstacles(0.1, blocking), pose()) is None
+    assert policy.decide(obstacles(0.2, blocking), pose()) is None
+    assert policy.decide(obstacles(3.2, blocking), pose()) == SPIRAL
+    assert policy.session.count == 2
+
+
+def test_no_progress_for_trapped_after_hands_over_to_the_planner():
+    policy = AvoidancePolicy(GOAL, AvoidanceParams(trapped_after=5.0))
+    wall = track(1, 3.5, 0.0, size=0.9)
+    modes = [policy.decide(obstacles(0.5 * k, wall), pose()) for k in range(12)]
+    assert modes[:11] == [SPIRAL] * 11 and modes[11] == REPLAN
+    assert "trapped" in policy.message
+    # progress towards the goal resets the clock
+    moving = AvoidancePolicy(GOAL, AvoidanceParams(trapped_after=5.0))
+    modes = [
+        moving.decide(obstacles(0.5 * k, track(1, 3.5, 0.0, robot=Pose2(0.3 * k, 0.0, 0.0))),
+                      pose(0.3 * k, 0.0))
+        for k in range(12)
+    ]  # fmt: skip
+    assert REPLAN not in modes
+
+
+def test_a_big_static_obstacle_whose_centroid_slides_is_not_taken_for_a_mover():
+    policy = AvoidancePolicy(GOAL, AvoidanceParams())
+    truck = track(1, 4.0, 0.0, v=(0.0, 0.3), size=2.5, kind="blob")
+    assert policy.decide(obstacles(0.0, truck), pose()) == SPIRAL
+
+
+def test_a_line_moving_along_itself_has_no_observable_speed():
+    along = SpiralObstacle((0.0, 0.0), (0.5, 0.0), 1.0, (-1.0, 0.0, 1.0, 0.0))
+    across = SpiralObstacle((0.0, 0.0), (0.0, 0.5), 1.0, (-1.0, 0.0, 1.0, 0.0))
+    assert along.observable_speed == pytest.approx(0.0)
+    assert across.observable_speed == pytest.approx(0.5)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    st.floats(-5, 5), st.floats(-5, 5), st.floats(-5, 5), st.floats(-5, 5), st.floats(0.2, 0.6)
+)
+def test_line_discs_cover_the_segment(x0, y0, x1, y1, spacing):
+    line = SpiralObstacle(((x0 + x1) / 2, (y0 + y1) / 2), (0.0, 0.0), 1.0, (x0, y0, x1, y1))
+    discs = obstacle_discs(line, spacing)
+    for s in np.linspace(0.0, 1.0, 50):
+        p = np.array([x0 + s * (x1 - x0), y0 + s * (y1 - y0)])
+        assert min(np.hypot(*(p - d.position)) - d.radius for d in discs) <= 1e-9
