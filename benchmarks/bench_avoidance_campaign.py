@@ -12,7 +12,10 @@ beside it, so an episode is one avoidance leg plus ~15 s at the far end. Each ep
 scenario written into a private copy of ``missions/track/`` (as ``tests/sim2d_helpers``
 does) and dry-run with ``dry_run(scenario, avoidance=True, avoider=...)``: ``None`` (the
 executive's own avoidance, called "spiral" here: the policy picks the spiral, velocity
-obstacles or its fallback planner) or :class:`dwa.DwaAvoidance` (benchmarks/dwa.py).
+obstacles or its fallback planner) or :class:`dwa.DwaAvoidance` (benchmarks/dwa.py),
+which the compiler then builds for both the spiral and the velocity-obstacle branches (the
+policy's fallback planner stays the executive's; the time each avoidance controller ran
+is recorded per episode, so a DWA run helped by it shows).
 
 Episodes (:func:`make_layout`). Episode k draws from ``numpy.random.Generator(PCG64(
 SeedSequence([seed, k])))``, so a layout depends only on (seed, k) and both controllers run
@@ -42,7 +45,9 @@ movers must not start in or walk through a static obstacle.
 
 Per episode (:func:`episode_record`): success (``DryRun.succeeded``: completed, no
 collision, no geofence breach), outcome and reason, collisions (which obstacle, its
-category and speed, the robot's commanded speed then), the minimum true footprint
+category and speed; the robot's sent speed and active controller at the last 10 Hz
+sample before the contact: a mover walking into a robot held by the e-stop shows as
+``robot_v`` 0 under the e-stop controller), the minimum true footprint
 clearance (``metrics()['min_clearance']``), the true path length of the leg (until the
 robot is within 0.35 m of P) and of the whole run, the leg and mission times (simulated),
 the avoidance engagements (controller switches into an avoidance controller from another
@@ -204,7 +209,7 @@ def _crossing(rng: np.random.Generator, oid: str) -> tuple[ObstacleSpec, object,
     y0, y1 = side * float(rng.uniform(3.0, 5.0)), -side * float(rng.uniform(3.0, 5.0))
     # the robot (cruise speed) is at x when the mover reaches the centre line, +- 1.5 s
     start_at = x / CRUISE + float(rng.uniform(-1.5, 1.5)) - abs(y0) / speed
-    robot_x = CRUISE * start_at
+    robot_x = min(CRUISE * start_at, x)
     trigger = math.hypot(x - robot_x, y0) if start_at > 0.0 else math.hypot(x, y0) + 0.5
     xml = (
         f'<path id="{oid}" kind="{kind}" {shape} speed="{speed:.3f}" '
@@ -317,6 +322,7 @@ class Task:
 
 
 def sim_seed(seed: int, episode: int) -> int:
+    """The simulator's seed of an episode (the reference, -1, gets ``seed * 100000``)."""
     return seed * 100_000 + episode + 1
 
 
@@ -361,7 +367,8 @@ def episode_record(run: DryRun, layout: Layout | None, controller: str) -> dict[
     collisions = []
     for c in run.robot.truth.collisions:
         spec = specs.get(c.other)
-        near = min(samples, key=lambda s: abs(s.t - c.time)) if samples else None
+        before = [s for s in samples if s.t <= c.time]  # the robot just before the hit
+        near = before[-1] if before else None
         collisions.append(
             {
                 "t": round(c.time, 2),
@@ -412,7 +419,7 @@ def run_task(task: Task) -> dict[str, object]:
             (lib / "track" / "scenarios").mkdir()
             path = lib / "track" / "scenarios" / "episode.xml"
             path.write_text(
-                scenario_xml(layout, sim_seed(task.seed, max(task.episode, -1))), encoding="utf-8"
+                scenario_xml(layout, sim_seed(task.seed, task.episode)), encoding="utf-8"
             )
             scenario = load_scenario(path)
             run = dry_run(scenario, avoidance=True, avoider=_avoider(task.controller))

@@ -27,12 +27,13 @@ The law (:func:`dwa_choose`, pure: numpy and math)
    The robot is its ``length`` x ``width`` rectangle centred on the axle (the footprint
    the dry-run judge and the e-stop use), not a disc: the clearance of an arc at time t is
    the distance from the rectangle at the arc's pose to the predicted disc.
-4. **Collision-free and admissible.** An arc is *collision-free* when its clearance never
-   drops below ``margin`` over the horizon (below the current clearance when the robot is
-   already closer than ``margin``: moving away is always allowed). A velocity is
-   *admissible* (Fox et al., eq. 14) when the robot can brake to a stop on its arc before
-   the first contact: ``v^2 / (2 a_v) <= v t_c`` with t_c the first time the clearance
-   goes below the threshold.
+4. **Collision-free and admissible.** An arc is *collision-free* when its clearance to
+   each disc never drops below that disc's margin over the horizon: ``margin`` (0.65 m)
+   for a static disc, ``moving_margin`` (1.0 m) for a moving one (nor below the current
+   clearance when the robot is already closer than that: moving away is always
+   allowed). A velocity is *admissible* (Fox et al., eq. 14) when the robot can brake to
+   a stop on its arc before the first contact: ``v^2 / (2 a_v) <= v t_c`` with t_c the
+   first time the clearance goes below the threshold.
 5. **Objective** (Fox et al., eq. 15, with fixed rather than per-cycle normalisation)::
 
        G(v, w) = w_heading * heading + w_clearance * clearance + w_speed * velocity
@@ -90,7 +91,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
-from typing import Protocol
+from typing import NamedTuple, Protocol
 
 import numpy as np
 import py_trees
@@ -110,6 +111,7 @@ Status = py_trees.common.Status
 __all__ = [
     "LINE_DISC_RADIUS",
     "LINE_DISC_SPACING",
+    "Clearances",
     "DiscLike",
     "DwaAvoidance",
     "DwaChoice",
@@ -127,8 +129,8 @@ LINE_DISC_RADIUS = 0.1
 LINE_DISC_SPACING = 0.1
 """Their spacing along the segment (m): the union is at least 0.087 m thick everywhere."""
 DEFAULT_RELEASE_MARGIN = 0.5 * 1.0 + 0.6 + 0.3
-"""The guard's path margin on the track missions: half-width + r_ES + the compiler's
-``AVOIDANCE_PATH_MARGIN`` (the factory is not given the mission's safety block)."""
+"""The guard's path margin on the track missions (half-width + r_ES + the compiler's
+``AVOIDANCE_PATH_MARGIN``), for a session that does not carry its own ``margin``."""
 
 
 class DiscLike(Protocol):
@@ -168,8 +170,12 @@ class DwaParams:
     """Robot footprint, a rectangle centred on the axle (m)."""
     width: float = 1.0
     margin: float = 0.65
-    """Smallest footprint clearance of a collision-free arc (m): r_ES of the track
-    missions (0.6 m) + 0.05 m, so that a chosen arc does not latch the e-stop."""
+    """Smallest footprint clearance of a collision-free arc to a static disc (m): r_ES of
+    the track missions (0.6 m) + 0.05 m, so that a chosen arc does not latch the e-stop
+    (and a 2.5 m gap, 0.75 m each side, stays passable)."""
+    moving_margin: float = 1.0
+    """The same for a moving disc (m): the prediction at constant velocity is rough, and
+    a robot stopped by the e-stop in a mover's way is run into."""
     clearance_cap: float = 1.5
     """Arc clearance above which the clearance term is 1 (m)."""
     body_radius: float = 0.5
@@ -197,8 +203,8 @@ class DwaParams:
                 raise ValueError(f"DwaParams.{name} must be > 0")
         if self.n_v < 2 or self.n_omega < 2:
             raise ValueError("the window grid needs at least 2 x 2 candidates")
-        if self.margin < 0.0:
-            raise ValueError("margin must be >= 0")
+        if self.margin < 0.0 or self.moving_margin < 0.0:
+            raise ValueError("margins must be >= 0")
 
     def within(self, platform: Platform) -> DwaParams:
         """These parameters clipped to the platform's limits, with its footprint."""
@@ -273,25 +279,39 @@ def rollout(pose: Pose2, v: FloatArray, omega: FloatArray, params: DwaParams) ->
     return out
 
 
+class Clearances(NamedTuple):
+    """What :func:`arc_clearances` returns, each (N, K + 1): per candidate and pose."""
+
+    footprint: FloatArray
+    """Footprint clearance to the nearest predicted disc (m)."""
+    excess: FloatArray
+    """Smallest footprint clearance minus that disc's margin (``margin`` for a static
+    disc, ``moving_margin`` for a moving one): negative is "too close"."""
+    body: FloatArray
+    """Clearance of the disc of ``body_radius`` at the axle: what the objective scores."""
+
+
 def arc_clearances(
     poses: FloatArray, obstacles: Sequence[DiscLike], params: DwaParams
-) -> tuple[FloatArray, FloatArray]:
-    """Clearances to the nearest predicted disc at each pose, both (N, K + 1).
+) -> Clearances:
+    """Clearances to the predicted discs at each pose of each arc.
 
     The disc m is at ``position + velocity * t`` at the time t of pose k (``k * dt``).
-    First the footprint clearance: the distance from the robot's rectangle to the disc
+    The footprint clearance is the distance from the robot's rectangle to the disc
     (negative when they overlap; ``-radius`` when the centre is inside the rectangle).
-    Second the body clearance the objective scores: the distance from a disc of radius
-    ``body_radius`` at the axle, which unlike the rectangle's does not depend on the
+    The body clearance, which the objective scores, is the distance from a disc of
+    radius ``body_radius`` at the axle: unlike the rectangle's it does not depend on the
     heading (turning swings the rectangle's corners, which would put a local maximum of
-    the objective at "no turn" and trap a one-period window in it). inf without discs.
+    the objective at "no turn"). All inf without discs.
     """
     n, k1, _ = poses.shape
     if not obstacles:
-        return np.full((n, k1), np.inf), np.full((n, k1), np.inf)
+        inf = np.full((n, k1), np.inf)
+        return Clearances(inf, inf.copy(), inf.copy())
     pos = np.array([o.position for o in obstacles], dtype=float)  # (M, 2)
     vel = np.array([o.velocity for o in obstacles], dtype=float)
     rad = np.array([o.radius for o in obstacles], dtype=float)
+    margin = np.where(np.hypot(vel[:, 0], vel[:, 1]) > 0.0, params.moving_margin, params.margin)
     t = np.arange(k1) * (params.horizon / (k1 - 1) if k1 > 1 else 0.0)
     centres = pos[None, :, :] + t[:, None, None] * vel[None, :, :]  # (K + 1, M, 2)
     d = centres[None, :, :, :] - poses[:, :, None, :2]  # (N, K + 1, M, 2)
@@ -300,9 +320,9 @@ def arc_clearances(
     across = np.abs(-s * d[..., 0] + c * d[..., 1]) - 0.5 * params.width
     outside = np.hypot(np.maximum(along, 0.0), np.maximum(across, 0.0))
     inside = np.minimum(np.maximum(along, across), 0.0)  # <= 0: centre inside the box
-    footprint = (outside + inside - rad[None, None, :]).min(axis=2)
-    body = (np.hypot(d[..., 0], d[..., 1]) - rad[None, None, :]).min(axis=2)
-    return footprint, body - params.body_radius
+    foot = outside + inside - rad
+    body = (np.hypot(d[..., 0], d[..., 1]) - rad).min(axis=2) - params.body_radius
+    return Clearances(foot.min(axis=2), (foot - margin).min(axis=2), body)
 
 
 def dwa_choose(
@@ -317,14 +337,14 @@ def dwa_choose(
     p = params
     v, w = candidates(velocity, p)
     poses = rollout(pose, v, w, p)
-    clear, body = arc_clearances(poses, obstacles, p)  # (N, K + 1) each
-    now = clear[0, 0]
-    threshold = min(p.margin, now - 1e-6) if math.isfinite(now) else p.margin
-    below = clear[:, 1:] < threshold
+    clear = arc_clearances(poses, obstacles, p)
+    now = clear.excess[0, 0]  # the same for every candidate: the current pose
+    threshold = min(0.0, now - 1e-6) if math.isfinite(now) else 0.0
+    below = clear.excess[:, 1:] < threshold
     hit = below.any(axis=1)
-    dt = p.horizon / (clear.shape[1] - 1)
+    dt = p.horizon / below.shape[1]
     contact = np.where(hit, (np.argmax(below, axis=1) + 1) * dt, np.inf)
-    arc_clear = clear[:, 1:].min(axis=1)
+    arc_clear = clear.footprint[:, 1:].min(axis=1)
     # objective
     tx, ty = float(target_xy[0]), float(target_xy[1])
     # heading at the pose reached after one window and a full-deceleration stop (Fox et
@@ -337,7 +357,7 @@ def dwa_choose(
     bearing = np.arctan2(ty - end_y, tx - end_x) - end_theta
     bearing = np.abs((bearing + math.pi) % (2.0 * math.pi) - math.pi)
     heading = 1.0 - bearing / math.pi
-    clearance = np.clip(body[:, 1:].min(axis=1), 0.0, p.clearance_cap) / p.clearance_cap
+    clearance = np.clip(clear.body[:, 1:].min(axis=1), 0.0, p.clearance_cap) / p.clearance_cap
     speed = v / p.v_max
     score = p.w_heading * heading + p.w_clearance * clearance + p.w_speed * speed
     free = ~hit
@@ -425,7 +445,7 @@ class DwaAvoidance(Controller):
         platform: Platform,
         period: float,
         params: DwaParams | None = None,
-        release_margin: float = DEFAULT_RELEASE_MARGIN,
+        release_margin: float | None = None,
         sensing_range: float = 6.0,
         static_speed: float = 0.1,
         name: str = "dwa avoidance",
@@ -437,7 +457,12 @@ class DwaAvoidance(Controller):
         self.every = max(1, round(self.params.window / period))
         """Ticks per DWA period: the command is held in between."""
         self._tick = 0
-        self.release_margin = release_margin
+        self.release_margin = (
+            release_margin
+            if release_margin is not None
+            else float(getattr(session, "margin", DEFAULT_RELEASE_MARGIN))
+        )
+        """The path corridor of the release check: the session's (the policy's) margin."""
         self.sensing_range = sensing_range
         self.static_speed = static_speed
         self.velocity = (0.0, 0.0)

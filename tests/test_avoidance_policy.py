@@ -39,9 +39,10 @@ def track(
     size: float = 0.4,
     kind: str = "circle",
     danger: Danger = Danger.NONE,
-    robot: Pose2 = Pose2(0.0, 0.0, 0.0),
+    robot: Pose2 | None = None,
 ) -> TrackedObstacle:
     """A track given in A for a robot at ``robot`` (converted to the robot frame)."""
+    robot = robot or Pose2(0.0, 0.0, 0.0)
     local = robot.inverse().apply(np.array([x, y]))
     c, s = math.cos(-robot.theta), math.sin(-robot.theta)
     vr = (c * v[0] - s * v[1], s * v[0] + c * v[1])
@@ -146,9 +147,7 @@ def test_a_line_moving_along_itself_has_no_observable_speed():
 
 
 @settings(max_examples=40, deadline=None)
-@given(
-    st.floats(-5, 5), st.floats(-5, 5), st.floats(-5, 5), st.floats(-5, 5), st.floats(0.2, 0.6)
-)
+@given(st.floats(-5, 5), st.floats(-5, 5), st.floats(-5, 5), st.floats(-5, 5), st.floats(0.2, 0.6))
 def test_line_discs_cover_the_segment(x0, y0, x1, y1, spacing):
     line = SpiralObstacle(((x0 + x1) / 2, (y0 + y1) / 2), (0.0, 0.0), 1.0, (x0, y0, x1, y1))
     discs = obstacle_discs(line, spacing)

@@ -187,7 +187,7 @@ def test_footprint_clearance_matches_shapely(x, y, th, r):
     disc = MovingDisc((x, y), (0.0, 0.0), r)
     pose = Pose2(0.3, -0.2, th)
     poses = np.array([[[pose.x, pose.y, pose.theta]]])
-    foot, _ = dwa.arc_clearances(poses, [disc], PARAMS)
+    foot = dwa.arc_clearances(poses, [disc], PARAMS).footprint
     expected = footprint_clearance(pose, disc, 0.0, PARAMS)
     if expected == -r:  # centre inside the rectangle: the law goes deeper, by how far in
         assert foot[0, 0] <= -r
