@@ -313,7 +313,10 @@ def build_parser() -> argparse.ArgumentParser:
     dry.add_argument(
         "--avoidance",
         action="store_true",
-        help="experimental (issue #6 in progress): spiral obstacle avoidance in the tree",
+        help=(
+            "obstacle avoidance in the tree: spiral, velocity obstacles, fallback planner "
+            "(issue #6; off by default until its campaign is run)"
+        ),
     )
     dry.set_defaults(handler=cmd_dry_run)
 
