@@ -105,6 +105,7 @@ def test_a_concave_trap_is_left_with_the_fallback_planner(tmp_path):
     assert any("end of the planned path" in e.detail["reason"] for e in ended)
 
 
+@pytest.mark.long  # ~7 min for both: opt-in (`python -m pytest -m long`) like --avoidance
 @pytest.mark.parametrize("name", ["busy-apron", "adversarial-trolley"])
 def test_a320_preflight_with_avoidance(name, tmp_path):
     scenario = load_scenario(MISSIONS / "a320" / "scenarios" / f"{name}.xml")
