@@ -22,13 +22,12 @@ import shapely
 from shapely.geometry import Polygon as ShapelyPolygon
 
 from behaviours.controllers.avoidance import (
+    AvoidanceController,
     AvoidanceParams,
     AvoiderFactory,
     AvoidObstacle,
-    DodgeObstacle,
     obstacle_in_airport,
 )
-from behaviours.controllers.fallback import FollowPlannedPath
 from behaviours.keys import OBSTACLES, POSE, PROGRESS, MissionProgress
 from executive.compiler import CompileOptions, compile_mission
 from executive.core.frames import AircraftPlacement, Pose2, wrap_angle
@@ -192,7 +191,7 @@ class _Watcher:
         self,
         robot: SimRobot,
         scenario: Scenario,
-        avoiders: Sequence[AvoidObstacle | DodgeObstacle | FollowPlannedPath] = (),
+        avoiders: Sequence[AvoidanceController] = (),
     ) -> None:
         self.robot = robot
         self.avoiders = list(avoiders)
@@ -489,11 +488,7 @@ def dry_run(
         journal = Journal(journal_path, mission.id, append=resume)
         if resumed is not None:
             journal.resume_from(resumed)
-    avoiders = [
-        n
-        for n in compiled.root.iterate()
-        if isinstance(n, AvoidObstacle | DodgeObstacle | FollowPlannedPath)
-    ]
+    avoiders = [n for n in compiled.root.iterate() if isinstance(n, AvoidanceController)]
     watcher = _Watcher(robot, scenario, avoiders)
     show = _Progress(progress_out, len(mission.checkpoints))
 

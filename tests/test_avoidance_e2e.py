@@ -105,9 +105,11 @@ def test_a_concave_trap_is_left_with_the_fallback_planner(tmp_path):
     assert any("end of the planned path" in e.detail["reason"] for e in ended)
 
 
-@pytest.mark.long  # ~7 min for both: opt-in (`python -m pytest -m long`) like --avoidance
+@pytest.mark.long
 @pytest.mark.parametrize("name", ["busy-apron", "adversarial-trolley"])
 def test_a320_preflight_with_avoidance(name, tmp_path):
+    """Deselected by default (``-m long`` runs it): two whole A320 missions take ~7 min and
+    pushed CI past 30 min, while avoidance itself is still opt-in (--avoidance)."""
     scenario = load_scenario(MISSIONS / "a320" / "scenarios" / f"{name}.xml")
     run = dry_run(scenario, avoidance=True)
     report = metrics(run)

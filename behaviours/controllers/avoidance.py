@@ -356,15 +356,40 @@ class AvoidanceTrigger(Guard):
         return Status.SUCCESS if mode == self.mode else Status.FAILURE
 
 
-def _rate_limiter(platform: Platform) -> RateLimiter:
-    return RateLimiter(
-        RateLimits(
-            max_acceleration=platform.max_acceleration,
-            max_angular_acceleration=platform.max_angular_acceleration,
-            max_speed=platform.max_speed,
-            max_angular_speed=platform.max_angular_speed,
+class AvoidanceController(Controller):
+    """What the avoidance controllers share: the navigation's goal and session, and a
+    command rate limited to the platform (the thesis's future-work item: no oscillating
+    velocities), restarted from rest when the controller takes over."""
+
+    reads = (OBSTACLES, POSE)
+    writes = (COMMAND,)
+
+    def __init__(
+        self, goal: Goal, session: AvoidanceSession, platform: Platform, period: float, name: str
+    ) -> None:
+        super().__init__(name)
+        self.goal, self.session, self.period = goal, session, period
+        self.limiter = RateLimiter(
+            RateLimits(
+                max_acceleration=platform.max_acceleration,
+                max_angular_acceleration=platform.max_angular_acceleration,
+                max_speed=platform.max_speed,
+                max_angular_speed=platform.max_angular_speed,
+            )
         )
-    )
+
+    def initialise(self) -> None:
+        self.limiter.reset(0.0, 0.0)
+
+    def drive(self, v: float, omega: float, why: str) -> Status:
+        """Send (v, omega) through the rate limiter."""
+        v, omega = self.limiter.step(v, omega, self.period)
+        self.write(COMMAND, VelocityCommand(v, omega))
+        self.feedback_message = why
+        return Status.RUNNING
+
+    def brake(self, why: str) -> Status:
+        return self.drive(0.0, 0.0, why)
 
 
 def _session_track(
@@ -375,16 +400,13 @@ def _session_track(
     return next((t for t in obstacles.tracks if t.id == session.obstacle_id), None)
 
 
-class AvoidObstacle(Controller):
-    """Spiral obstacle avoidance around the session's obstacle (eqs. 4.1-4.16); the
-    command is rate limited (the thesis's future-work item: no oscillating velocities).
+class AvoidObstacle(AvoidanceController):
+    """Spiral obstacle avoidance around the session's obstacle (eqs. 4.1-4.16), rate
+    limited.
 
     :attr:`last` keeps the law's last :class:`SpiralOutput` (alpha_d, xi, beta_c, e_alpha,
     e_r, ...) for the report.
     """
-
-    reads = (OBSTACLES, POSE)
-    writes = (COMMAND,)
 
     def __init__(
         self,
@@ -395,19 +417,17 @@ class AvoidObstacle(Controller):
         params: SpiralParams | None = None,
         name: str = "spiral avoidance",
     ) -> None:
-        super().__init__(name)
-        self.goal, self.session, self.period = goal, session, period
+        super().__init__(goal, session, platform, period, name)
         self.params = params or SpiralParams()
         self.law = SpiralAvoidance(self.params)
-        self.limiter = _rate_limiter(platform)
         self.last: SpiralOutput | None = None
 
     def initialise(self) -> None:
+        super().initialise()
         # the release check uses the policy's corridor: engage and release stay exclusive
         self.law = SpiralAvoidance(
             dataclasses.replace(self.params, path_margin=self.session.margin)
         )
-        self.limiter.reset(0.0, 0.0)
         self.last = None
 
     def update(self) -> Status:
@@ -415,23 +435,19 @@ class AvoidObstacle(Controller):
         pose: PoseEstimate | None = self.read(POSE)
         track = _session_track(obstacles, self.session)
         if pose is None or track is None:
-            v, omega = self.limiter.step(0.0, 0.0, self.period)
-            self.write(COMMAND, VelocityCommand(v, omega))
-            self.feedback_message = "obstacle not in view: braking"
-            return Status.RUNNING
+            return self.brake("obstacle not in view: braking")
         obstacle = obstacle_in_airport(track, pose.pose_a)
         target = self.goal.in_airport(pose)
         out = self.law.command(pose.pose_a, np.array([target.x, target.y]), obstacle, self.period)
         if out.released:
             self.session.released, self.session.reason = True, out.reason
         self.last = out
-        v, omega = self.limiter.step(out.v, out.omega, self.period)
-        self.write(COMMAND, VelocityCommand(v, omega))
-        self.feedback_message = (
+        return self.drive(
+            out.v,
+            out.omega,
             f"spiral: alpha_d {math.degrees(out.alpha_d):.0f} deg, beta_c "
-            f"{math.degrees(out.beta_c):.0f} deg, e_r {out.e_r:.2f} m"
+            f"{math.degrees(out.beta_c):.0f} deg, e_r {out.e_r:.2f} m",
         )
-        return Status.RUNNING
 
 
 def obstacle_discs(obstacle: SpiralObstacle, spacing: float = 0.5) -> list[MovingDisc]:
@@ -448,7 +464,7 @@ def obstacle_discs(obstacle: SpiralObstacle, spacing: float = 0.5) -> list[Movin
     return [MovingDisc(obstacle.position, obstacle.velocity, obstacle.size)]
 
 
-class DodgeObstacle(Controller):
+class DodgeObstacle(AvoidanceController):
     """Velocity obstacles (Fiorini and Shiller) against every obstacle tracked within
     ``reach``, for an obstacle too fast for the spiral (seed line 1516).
 
@@ -460,9 +476,6 @@ class DodgeObstacle(Controller):
     points near the robot, one every ``zone_spacing`` metres. The robot's disc is its
     circumscribed circle plus ``margin``.
     """
-
-    reads = (OBSTACLES, POSE)
-    writes = (COMMAND,)
 
     def __init__(
         self,
@@ -478,27 +491,22 @@ class DodgeObstacle(Controller):
         reverse_max: float = 1.0,
         name: str = "velocity obstacles",
     ) -> None:
-        super().__init__(name)
-        self.goal, self.session, self.period = goal, session, period
+        super().__init__(goal, session, platform, period, name)
         self.platform, self.nu_min = platform, nu_min
         self.escape_factor, self.reach = escape_factor, reach
         self.zone_spacing, self.reverse_max = zone_spacing, reverse_max
-        self.radius = 0.5 * math.hypot(platform.length, platform.width) + margin
-        self.limiter = _rate_limiter(platform)
+        self.radius = platform.turning_radius + margin
         self.last: VelocityChoice | None = None
 
     def initialise(self) -> None:
-        self.limiter.reset(0.0, 0.0)
+        super().initialise()
         self.last = None
 
     def update(self) -> Status:
         obstacles: Obstacles | None = self.read(OBSTACLES)
         pose: PoseEstimate | None = self.read(POSE)
         if pose is None or obstacles is None:
-            v, omega = self.limiter.step(0.0, 0.0, self.period)
-            self.write(COMMAND, VelocityCommand(v, omega))
-            self.feedback_message = "no pose or obstacles: braking"
-            return Status.RUNNING
+            return self.brake("no pose or obstacles: braking")
         robot = pose.pose_a
         near = [
             obstacle_in_airport(t, robot)
@@ -528,13 +536,12 @@ class DodgeObstacle(Controller):
             np.array([robot.x, robot.y]), robot.theta, preferred, discs, params
         )
         self.last = choice
-        v, omega = self.limiter.step(choice.v, choice.omega, self.period)
-        self.write(COMMAND, VelocityCommand(v, omega))
-        self.feedback_message = (
+        return self.drive(
+            choice.v,
+            choice.omega,
             f"VO: {len(near)} obstacles, fastest {fastest:.2f} m/s, "
-            f"{'clear' if choice.feasible else f'contact in {choice.time_to_collision:.1f} s'}"
+            f"{'clear' if choice.feasible else f'contact in {choice.time_to_collision:.1f} s'}",
         )
-        return Status.RUNNING
 
     def _zone_discs(self, obstacles: Obstacles, robot: Pose2) -> tuple[MovingDisc, ...]:
         virtual = obstacles.virtual

@@ -27,15 +27,14 @@ from concurrent.futures import Future, ThreadPoolExecutor
 import numpy as np
 import py_trees
 
-from behaviours.base import Controller
-from behaviours.controllers.avoidance import AvoidanceSession, _rate_limiter
+from behaviours.controllers.avoidance import AvoidanceController, AvoidanceSession
 from behaviours.goals import Goal
-from behaviours.keys import COMMAND, OBSTACLES, POSE
+from behaviours.keys import OBSTACLES, POSE
 from behaviours.laws.costmap import Costmap, PlannedPath
 from behaviours.laws.go_to_goal import GoToGoal, GoToGoalParams
 from executive.core.frames import AircraftPlacement, FloatArray, Pose2
 from executive.core.model import Frame, Mission
-from executive.core.records import Obstacles, PoseEstimate, VelocityCommand
+from executive.core.records import Obstacles, PoseEstimate
 
 Status = py_trees.common.Status
 
@@ -70,11 +69,8 @@ def plan_path(
     return costmap.plan(start, goal, goal_tolerance=goal_tolerance)
 
 
-class FollowPlannedPath(Controller):
+class FollowPlannedPath(AvoidanceController):
     """Plan around the trap on a costmap and follow the waypoints with go-to-goal."""
-
-    reads = (OBSTACLES, POSE)
-    writes = (COMMAND,)
 
     def __init__(
         self,
@@ -87,17 +83,16 @@ class FollowPlannedPath(Controller):
         waypoint_tolerance: float = 0.4,
         name: str = "fallback planner",
     ) -> None:
-        super().__init__(name)
-        self.goal, self.session, self.mission, self.period = goal, session, mission, period
+        super().__init__(goal, session, mission.platform, period, name)
+        self.mission = mission
         platform = mission.platform
         # a path cell keeps the robot's circumscribed circle r_ES (+ a little) clear of
         # every obstacle, so following it never trips the e-stop
-        self.radius = 0.5 * math.hypot(platform.length, platform.width) + mission.safety.r_es + 0.15
+        self.radius = platform.turning_radius + mission.safety.r_es + 0.15
         self.params = dataclasses.replace(
             params, position_tolerance=waypoint_tolerance, allow_reverse=False
         )
         self.plan_delay, self.waypoint_tolerance = plan_delay, waypoint_tolerance
-        self.limiter = _rate_limiter(platform)
         self.path: PlannedPath | None = None
         self._future: Future[PlannedPath | None] | None = None
         self._apply_at = 0.0
@@ -105,14 +100,14 @@ class FollowPlannedPath(Controller):
         self._law: GoToGoal | None = None
 
     def initialise(self) -> None:
+        super().initialise()
         self.path, self._future, self._next, self._law = None, None, 1, None
-        self.limiter.reset(0.0, 0.0)
 
     def update(self) -> Status:
         obstacles: Obstacles | None = self.read(OBSTACLES)
         pose: PoseEstimate | None = self.read(POSE)
         if obstacles is None or pose is None:
-            return self._hold("no pose or obstacles")
+            return self.brake("no pose or obstacles")
         if self.path is None:
             return self._await_plan(obstacles, pose)
         waypoints = self.path.waypoints
@@ -126,17 +121,14 @@ class FollowPlannedPath(Controller):
             self.waypoint_tolerance
         ):
             self.session.released, self.session.reason = True, "end of the planned path"
-            return self._hold("end of the planned path")
+            return self.brake("end of the planned path")
         heading = math.atan2(y - robot.y, x - robot.x)
         if self._law is None:
             self._law = GoToGoal(self.params)
         out = self._law.command(
             robot, Pose2(float(x), float(y), heading), goal_heading=False, dt=self.period
         )
-        v, omega = self.limiter.step(out.v, out.omega, self.period)
-        self.write(COMMAND, VelocityCommand(v, omega))
-        self.feedback_message = f"waypoint {self._next}/{len(waypoints) - 1}"
-        return Status.RUNNING
+        return self.drive(out.v, out.omega, f"waypoint {self._next}/{len(waypoints) - 1}")
 
     def _await_plan(self, obstacles: Obstacles, pose: PoseEstimate) -> Status:
         now = obstacles.stamp
@@ -159,18 +151,12 @@ class FollowPlannedPath(Controller):
                 0.3,
             )
             self._apply_at = now + self.plan_delay
-            return self._hold("planning")
+            return self.brake("planning")
         if now < self._apply_at:
-            return self._hold("planning")
+            return self.brake("planning")
         path = self._future.result()
         if path is None:
             self.session.released, self.session.reason = True, "no path on the costmap"
-            return self._hold("no path on the costmap")
+            return self.brake("no path on the costmap")
         self.path = path
-        return self._hold(f"planned {path.length:.1f} m, {len(path.waypoints) - 1} legs")
-
-    def _hold(self, why: str) -> Status:
-        v, omega = self.limiter.step(0.0, 0.0, self.period)
-        self.write(COMMAND, VelocityCommand(v, omega))
-        self.feedback_message = why
-        return Status.RUNNING
+        return self.brake(f"planned {path.length:.1f} m, {len(path.waypoints) - 1} legs")
