@@ -265,6 +265,7 @@ class _Builder:
             self.options.avoidance_params or AvoidanceParams(),
             r_oa=m.safety.r_oa_trigger,
             margin=margin,
+            cruise=m.navigation.cruise_speed,
         )
         policy = AvoidancePolicy(goal, params)
         self.avoidance_policies.append(policy)

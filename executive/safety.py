@@ -29,10 +29,11 @@ the e-stop, faults and the geofence always win over the tree):
 4. **Slowdown zone** (like Nav2's collision monitor, with the direction of travel of
    speed-and-separation monitoring): the requested speed is scaled by
    ``s = clamp((r_d - r_es) / (r_oa - r_es), floor, 1)`` where r_d is the distance from
-   the footprint to the nearest laser return *in the half-plane the robot drives into*
-   (ahead of the axle for v > 0, behind it for v < 0; r_c itself when only r_c and its
-   bearing are known and the bearing lies that way). Driving away from an obstacle is
-   not slowed, so avoidance can outpace an obstacle closing in from behind or the side.
+   the footprint to the nearest laser return *in the corridor the robot drives into*: ahead
+   of the axle for v > 0, behind it for v < 0, and within half the robot's width + r_es
+   of its axis (r_c itself when only r_c and its bearing are known and the bearing lies
+   that way). Driving away from an obstacle, or sideways past it, is not slowed, so
+   avoidance can outpace or sidestep an obstacle closing in.
    The floor (``slowdown_floor``, default 0.2) keeps obstacle avoidance able to creep round
    an obstacle; the e-stop takes over below r_es anyway. Only v is scaled; omega and the
    pan/tilt rates are not.
@@ -713,18 +714,19 @@ class SafetyLayer:
         return scale
 
     def _closing_clearance(self, obstacles: Obstacles, v: float) -> float:
-        """r_d: the footprint's distance to the nearest return the motion ``v`` drives
-        towards (NaN, unknown, stays NaN)."""
+        """r_d: the footprint's distance to the nearest return in the corridor the motion
+        ``v`` drives into (NaN, unknown, stays NaN)."""
         r_c = obstacles.closest
         if not r_c < self.safety.r_oa_trigger or v == 0.0:
             return r_c
         points = obstacles.points
         if len(points) == 0:
             return r_c if v * math.cos(obstacles.bearing) > 0.0 else math.inf
-        ahead = points[points[:, 0] * v > 0.0]
+        platform = self.mission.platform
+        half = 0.5 * platform.width + self.safety.r_es
+        ahead = points[(points[:, 0] * v > 0.0) & (np.abs(points[:, 1]) <= half)]
         if len(ahead) == 0:
             return math.inf
-        platform = self.mission.platform
         return float(footprint_distances(ahead, platform.length, platform.width).min())
 
     def _pan_tilt(

@@ -819,12 +819,15 @@ def test_missions_with_fewer_zones(keep):
 
 def test_slowdown_only_slows_motion_towards_the_obstacle():
     """An obstacle 1 m behind does not slow the robot driving forward (away from it), and
-    does slow it backing up; a return ahead still slows it (speed-and-separation)."""
+    does slow it backing up; a return ahead still slows it (speed-and-separation), one
+    ahead but beside the corridor the robot sweeps (half its width + r_ES) does not."""
     s = mission().safety
     expect = max(0.2, (1.0 - s.r_es) / (s.r_oa_trigger - s.r_es))
     behind = np.array([[-0.7 - 1.0, 0.0]])  # 1 m behind the 1.4 m footprint's rear
     ahead = np.array([[0.7 + 1.0, 0.0]])
-    for points, v, scale in ((behind, 1.5, 1.0), (behind, -1.0, expect), (ahead, 1.5, expect)):
+    aside = np.array([[0.7 + 1.0, 0.5 * mission().platform.width + s.r_es + 0.05]])
+    cases = ((behind, 1.5, 1.0), (behind, -1.0, expect), (ahead, 1.5, expect), (aside, 1.5, 1.0))
+    for points, v, scale in cases:
         lay = layer()
         b = Bench(lay)
         for _ in range(100):

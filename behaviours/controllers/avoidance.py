@@ -36,12 +36,14 @@ from behaviours.laws.spiral import (
     path_blocked,
 )
 from behaviours.laws.velocity_obstacles import (
+    HeadingChoice,
+    HeadingVoParams,
     MovingDisc,
-    VelocityChoice,
-    VoParams,
-    choose_velocity,
+    choose_heading,
+    heading_command,
+    time_to_collision,
 )
-from executive.core.frames import Pose2, wrap_angle
+from executive.core.frames import Pose2
 from executive.core.model import Platform
 from executive.core.records import (
     Danger,
@@ -118,10 +120,11 @@ class AvoidanceParams:
     """r_OA-trigger: clearance under which an obstacle on the way engages the avoidance."""
     margin: float = 1.4
     """Half-width of the corridor robot -> goal in which an obstacle is "on the way"."""
-    fast_speed: float = 0.25
-    """An obstacle faster than this is avoided with velocity obstacles (the spiral runs
-    at nu_max = 0.4 m/s and cannot outpace it)..."""
-    slow_speed: float = 0.12
+    fast_speed: float = 0.15
+    """An obstacle faster than this is avoided with velocity obstacles (the spiral goes
+    round an obstacle; a walker at a third of the spiral's speed, nu_max = 0.4 m/s,
+    already walks into it)..."""
+    slow_speed: float = 0.08
     """...and with the spiral again once slower than this (hysteresis)."""
     lost_after: float = 1.0
     """An obstacle not tracked for this long releases the avoidance (s)."""
@@ -132,8 +135,9 @@ class AvoidanceParams:
     closer than r_OA / 2: no re-trigger loop on a noisy boundary."""
     speed_time_constant: float = 0.5
     """Low-pass filter of each track's observable speed (s)."""
-    large_size: float = 1.0
-    """Obstacles larger than this (enclosing radius, m: vehicles, structures)..."""
+    large_size: float = 1.5
+    """Obstacles larger than this (enclosing radius, m: vehicles, structures; a trolley
+    seen as one blob measures about 1.1 m)..."""
     large_speed_allowance: float = 0.4
     """...have this much of their speed discounted (m/s): as the robot moves round a big
     static obstacle its visible part, hence its tracked centroid, slides by up to
@@ -141,6 +145,15 @@ class AvoidanceParams:
     anticipation: float = 2.0
     """An obstacle moving onto the path engages this many seconds of its motion before
     r_OA-trigger (s): a trolley at 0.7 m/s is met 1.4 m earlier."""
+    cruise: float = 0.6
+    """The navigation's speed (m/s), for the collision-course check (the compiler sets the
+    mission's cruise speed)."""
+    horizon: float = 4.0
+    """A mover whose motion meets the robot's within this time (s) is on a collision
+    course: the robot driving to the goal at ``cruise``, or standing still..."""
+    mover_margin: float = 0.4
+    """...closer than the corridor half-width ``margin`` plus this plus the mover's size
+    (m; :class:`DodgeObstacle` keeps the same distance)."""
     trapped_after: float = 20.0
     """A spiral that brings the robot no ``progress`` closer to the goal for this long is
     trapped: the fallback planner takes over (s; inf: never)."""
@@ -251,7 +264,11 @@ class AvoidancePolicy:
                 return SPIRAL
             if speed[track.id] < p.slow_speed and blocked:
                 return self._switch(SPIRAL, track, f"it slowed to {speed[track.id]:.2f} m/s")
-            harmless = track.danger < Danger.ON_PATH and not blocked
+            harmless = (
+                track.danger < Danger.ON_PATH
+                and not blocked
+                and not self._collision_course(obstacle, speed[track.id], robot, target_xy)
+            )
             if not harmless:
                 session.clear_since = None
                 return DODGE
@@ -295,7 +312,10 @@ class AvoidancePolicy:
         best: tuple[TrackedObstacle, SpiralObstacle] | None = None
         for track, obstacle in candidates.values():
             speed = self._speeds[track.id]
-            moving_in = track.danger >= Danger.ON_PATH and speed > p.slow_speed
+            moving_in = speed > p.slow_speed and (
+                track.danger >= Danger.ON_PATH
+                or self._collision_course(obstacle, speed, robot, target_xy)
+            )
             # an obstacle moving in is met earlier: r_OA plus anticipation x its speed
             reach = p.r_oa + (p.anticipation * speed if moving_in else 0.0)
             if track.clearance >= reach:
@@ -313,6 +333,24 @@ class AvoidancePolicy:
             if best is None or track.clearance < best[0].clearance:
                 best = (track, obstacle)
         return best
+
+    def _collision_course(
+        self, obstacle: SpiralObstacle, speed: float, robot: np.ndarray, target_xy: np.ndarray
+    ) -> bool:
+        """Whether the obstacle (low-passed ``speed``), at its tracked velocity, comes
+        within the robot's safety distance in ``horizon`` seconds, the robot driving to the
+        goal at ``cruise`` or standing still (a velocity-obstacle test of both motions)."""
+        p = self.params
+        if speed <= p.slow_speed:
+            return False
+        disc = MovingDisc(obstacle.position, obstacle.velocity, obstacle.size + p.mover_margin)
+        to_goal = target_xy - robot
+        distance = float(np.hypot(*to_goal))
+        drive = to_goal / distance * min(p.cruise, distance) if distance > 1e-6 else to_goal
+        return any(
+            time_to_collision(robot, velocity, disc, p.margin) < p.horizon
+            for velocity in (drive, np.zeros(2))
+        )
 
     def _switch(self, mode: str, track: TrackedObstacle, why: str) -> str:
         session = self.session
@@ -466,15 +504,24 @@ def obstacle_discs(obstacle: SpiralObstacle, spacing: float = 0.5) -> list[Movin
 
 class DodgeObstacle(AvoidanceController):
     """Velocity obstacles (Fiorini and Shiller) against every obstacle tracked within
-    ``reach``, for an obstacle too fast for the spiral (seed line 1516).
+    ``reach``, for obstacles that move (seed line 1516).
 
-    The preferred command heads for the goal; the chosen one lies outside every velocity
-    obstacle within the horizon, within one period of the platform's accelerations. Its
-    top speed is ``escape_factor`` x the fastest obstacle's speed (at least the spiral's
-    nu_max, at most the platform's max speed): a robot no faster than a trolley chasing
-    it cannot get away. Forbidden-zone walls count as static discs: the virtual wall
-    points near the robot, one every ``zone_spacing`` metres. The robot's disc is its
-    circumscribed circle plus ``margin``.
+    The law is :func:`behaviours.laws.velocity_obstacles.choose_heading`: the robot, a
+    differential drive, turns on the spot and then drives, so every candidate velocity is
+    checked with the time it takes to turn to it; reversing is allowed (both lasers
+    watch). The preferred velocity heads for the goal; the chosen one is the closest to it
+    whose motion meets no obstacle within the horizon. Its top speed is ``escape_factor``
+    x the fastest obstacle's speed (at least ``nu_min``, at most the platform's): a robot
+    no faster than a trolley chasing it cannot get away. Forbidden-zone walls count as
+    static discs: the virtual wall points near the robot, one every ``zone_spacing``
+    metres.
+
+    Sizes: the robot is a disc of radius the session's corridor half-width (half the
+    robot's width + r_ES + a margin) less ``static_inset`` against static obstacles, so
+    that it still fits the passages the policy lets it into; an obstacle that moves gets
+    up to ``mover_margin`` more (in proportion to its speed, full at ``mover_speed``), so
+    that a walker never comes within r_ES: the e-stop would hold the robot still in its
+    way.
     """
 
     def __init__(
@@ -485,18 +532,24 @@ class DodgeObstacle(AvoidanceController):
         period: float,
         nu_min: float = 0.4,
         escape_factor: float = 2.0,
-        margin: float = 0.3,
         reach: float = 8.0,
         zone_spacing: float = 0.4,
         reverse_max: float = 1.0,
+        static_inset: float = 0.2,
+        mover_margin: float = 0.4,
+        mover_speed: float = 0.3,
         name: str = "velocity obstacles",
     ) -> None:
         super().__init__(goal, session, platform, period, name)
         self.platform, self.nu_min = platform, nu_min
         self.escape_factor, self.reach = escape_factor, reach
         self.zone_spacing, self.reverse_max = zone_spacing, reverse_max
-        self.radius = platform.turning_radius + margin
-        self.last: VelocityChoice | None = None
+        self.static_inset, self.mover_margin, self.mover_speed = (
+            static_inset,
+            mover_margin,
+            mover_speed,
+        )
+        self.last: HeadingChoice | None = None
 
     def initialise(self) -> None:
         super().initialise()
@@ -515,33 +568,44 @@ class DodgeObstacle(AvoidanceController):
         ]
         fastest = max((o.speed for o in near), default=0.0)
         v_max = min(self.platform.max_speed, max(self.nu_min, self.escape_factor * fastest))
-        # reversing is allowed (both lasers watch): a unicycle cannot turn round in time
-        # to flee an obstacle coming at it from ahead
-        params = VoParams(
-            v_min=-min(v_max, self.reverse_max),
+        params = HeadingVoParams(
             v_max=v_max,
+            reverse_max=min(v_max, self.reverse_max),
             omega_max=self.platform.max_angular_speed,
-            robot_radius=self.radius,
-            horizon=4.0,
         )
         target = self.goal.in_airport(pose)
-        bearing = math.atan2(target.y - robot.y, target.x - robot.x)
-        error = wrap_angle(bearing - robot.theta)
-        preferred = (v_max * max(0.0, math.cos(error)), max(-1.0, min(1.0, 1.5 * error)))
-        discs = tuple(d for o in near for d in obstacle_discs(o))
+        to_goal = np.array([target.x - robot.x, target.y - robot.y])
+        distance = float(np.hypot(*to_goal))
+        speed = min(v_max, distance / 1.5)
+        preferred = to_goal / distance * speed if distance > 1e-6 else np.zeros(2)
+        discs = tuple(self._inflated(d) for o in near for d in obstacle_discs(o))
         discs += self._zone_discs(obstacles, robot)
-        # the whole velocity range, not one period's window: a velocity obstacle assumes
-        # the chosen velocity is held, and the rate limiter below gets there
-        choice = choose_velocity(
-            np.array([robot.x, robot.y]), robot.theta, preferred, discs, params
+        previous = self.last.velocity if self.last is not None else None
+        choice = choose_heading(
+            np.array([robot.x, robot.y]),
+            robot.theta,
+            preferred,
+            discs,
+            params,
+            self.session.margin - self.static_inset,
+            previous,
         )
         self.last = choice
+        v, omega = heading_command(robot.theta, choice, params.omega_max)
         return self.drive(
-            choice.v,
-            choice.omega,
-            f"VO: {len(near)} obstacles, fastest {fastest:.2f} m/s, "
+            v,
+            omega,
+            f"VO: {len(near)} obstacles, fastest {fastest:.2f} m/s, heading "
+            f"{math.degrees(choice.heading):.0f} deg at {choice.speed:.2f} m/s"
+            f"{' reversing' if choice.reverse else ''}, "
             f"{'clear' if choice.feasible else f'contact in {choice.time_to_collision:.1f} s'}",
         )
+
+    def _inflated(self, disc: MovingDisc) -> MovingDisc:
+        """``disc`` grown by the mover margin for its speed."""
+        speed = math.hypot(*disc.velocity)
+        extra = self.mover_margin * min(1.0, speed / self.mover_speed)
+        return MovingDisc(disc.position, disc.velocity, disc.radius + extra)
 
     def _zone_discs(self, obstacles: Obstacles, robot: Pose2) -> tuple[MovingDisc, ...]:
         virtual = obstacles.virtual

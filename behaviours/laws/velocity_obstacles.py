@@ -33,12 +33,17 @@ import numpy as np
 from executive.core.frames import FloatArray
 
 __all__ = [
+    "HeadingChoice",
+    "HeadingVoParams",
     "MovingDisc",
     "VelocityChoice",
     "VoParams",
+    "choose_heading",
     "choose_velocity",
+    "heading_command",
     "in_velocity_obstacle",
     "time_to_collision",
+    "turn_then_go_contact",
     "velocity_vector",
 ]
 
@@ -186,3 +191,209 @@ def choose_velocity(
     k = int(np.lexsort((cost, late))[0])
     v, w, ttc = float(v_grid[k]), float(w_grid[k]), float(ttc_all[k])
     return VelocityChoice(v, w, ttc >= p.horizon, ttc)
+
+
+# -- turn-then-go velocity obstacles (a differential-drive robot) -------------------------------
+@dataclass(frozen=True, slots=True)
+class HeadingVoParams:
+    """Limits and tuning of :func:`choose_heading` (SI units)."""
+
+    v_max: float = 1.2
+    reverse_max: float = 1.0
+    """Top reversing speed (0: never reverse)."""
+    omega_max: float = 1.0
+    horizon: float = 4.0
+    """tau: contacts later than this are ignored (s)."""
+    n_heading: int = 36
+    """Headings sampled round the full circle (10 degrees apart by default)."""
+    n_speed: int = 7
+    turn_weight: float = 0.05
+    """Cost per second spent turning before the robot can drive off."""
+    reverse_weight: float = 0.05
+    """Extra cost of a reversing candidate."""
+    hold_weight: float = 0.3
+    """Cost of leaving the previously chosen velocity, per unit of ``(1 - cos)`` of the
+    angle between them: no dithering between passing left and passing right."""
+
+    def __post_init__(self) -> None:
+        if not (self.v_max > 0.0 and self.reverse_max >= 0.0):
+            raise ValueError("need v_max > 0 and reverse_max >= 0")
+        if not (self.omega_max > 0.0 and self.horizon > 0.0):
+            raise ValueError("omega_max and horizon must be > 0")
+        if self.n_heading < 4 or self.n_speed < 2:
+            raise ValueError("need at least 4 headings and 2 speeds")
+
+
+@dataclass(frozen=True, slots=True)
+class HeadingChoice:
+    """A velocity chosen by :func:`choose_heading`: drive along ``heading`` (in the
+    frame of the positions) at ``speed``, backwards when ``reverse``."""
+
+    heading: float
+    speed: float
+    reverse: bool
+    feasible: bool
+    """False: every candidate meets a disc within the horizon; this one meets it last."""
+    time_to_collision: float
+    turn_time: float
+    """Seconds of turning on the spot before the robot drives off (the model's)."""
+
+    @property
+    def velocity(self) -> FloatArray:
+        """The chosen ground velocity (m/s)."""
+        return np.array([self.speed * math.cos(self.heading), self.speed * math.sin(self.heading)])
+
+
+def _first_contact(
+    d0: FloatArray, rel: FloatArray, radii: FloatArray, t_end: FloatArray
+) -> FloatArray:
+    """First t in [0, t_end] with ``|d0 + rel t| <= radius``, inf if none (broadcast).
+
+    ``d0`` (..., 2) is the obstacle's offset from the robot, ``rel`` (..., 2) its velocity
+    relative to the robot. An offset already inside the radius gives 0 while the motion
+    closes the gap and inf otherwise: a robot inside an inflated disc may leave it, or
+    stand (turn on the spot) beside a static one.
+    """
+    a = np.einsum("...i,...i->...", rel, rel)
+    b = np.einsum("...i,...i->...", d0, rel)  # |d0 + rel t|^2 = a t^2 + 2 b t + c
+    c = np.einsum("...i,...i->...", d0, d0) - radii * radii
+    disc = b * b - a * c
+    with np.errstate(invalid="ignore", divide="ignore"):
+        t = (-b - np.sqrt(np.maximum(disc, 0.0))) / a
+    hit = (a > 0.0) & (b < 0.0) & (disc >= 0.0) & (t <= t_end)
+    out = np.where(hit, t, np.inf)
+    return np.where(c <= 0.0, np.where(b < 0.0, 0.0, np.inf), out)
+
+
+def turn_then_go_contact(
+    robot_xy: FloatArray,
+    turn_time: FloatArray,
+    velocity: FloatArray,
+    obstacles: tuple[MovingDisc, ...],
+    robot_radius: float,
+    horizon: float,
+) -> FloatArray:
+    """First contact time of K candidate motions with any disc within ``horizon`` (K,).
+
+    Candidate k turns on the spot for ``turn_time[k]`` seconds, then drives at the constant
+    ground velocity ``velocity[k]``; every disc moves at its constant velocity. Both phases
+    are linear relative motions, so each contact time is the smaller root of a quadratic
+    (the velocity obstacle of Fiorini and Shiller, 1998, with the turning delay of a
+    differential drive in front: the "generalized velocity obstacle" idea of Wilkie, van
+    den Berg and Manocha, 2009, in closed form for this two-phase control).
+    """
+    if not obstacles:
+        return np.full(len(turn_time), np.inf)
+    pos = np.array([o.position for o in obstacles], dtype=float) - np.asarray(robot_xy, float)
+    vel = np.array([o.velocity for o in obstacles], dtype=float)
+    radii = robot_radius + np.array([o.radius for o in obstacles], dtype=float)
+    t1 = np.minimum(np.asarray(turn_time, dtype=float), horizon)[:, None]  # (K, 1)
+    # phase 1: the robot turns in place, the discs move (nothing to check without a turn)
+    first = _first_contact(pos[None, :, :], vel[None, :, :], radii, t1)
+    first = np.where(t1 > 0.0, first, np.inf)
+    # phase 2: from t1 on, the robot drives at its velocity
+    d0 = pos[None, :, :] + vel[None, :, :] * t1[:, :, None]
+    rel = vel[None, :, :] - np.asarray(velocity, float)[:, None, :]
+    second = t1 + _first_contact(d0, rel, radii, horizon - t1)
+    return np.minimum(first, second).min(axis=1)
+
+
+def _worst_clearance(
+    robot_xy: FloatArray,
+    turn_time: FloatArray,
+    velocity: FloatArray,
+    obstacles: tuple[MovingDisc, ...],
+    robot_radius: float,
+    horizon: float,
+    samples: int = 16,
+) -> FloatArray:
+    """Smallest signed clearance (centre distance minus the radii) of each turn-then-go
+    candidate to any disc at ``samples`` instants in (0, horizon] (K,)."""
+    t = np.linspace(horizon / samples, horizon, samples)  # (S,)
+    moved = np.maximum(0.0, t[None, :] - np.asarray(turn_time, float)[:, None])  # (K, S)
+    robot = (
+        np.asarray(robot_xy, float) + moved[:, :, None] * np.asarray(velocity, float)[:, None, :]
+    )
+    pos = np.array([o.position for o in obstacles], dtype=float)
+    vel = np.array([o.velocity for o in obstacles], dtype=float)
+    radii = robot_radius + np.array([o.radius for o in obstacles], dtype=float)
+    where = pos[None, :, :] + t[:, None, None] * vel[None, :, :]  # (S, M, 2)
+    gap = np.linalg.norm(where[None, :, :, :] - robot[:, :, None, :], axis=-1) - radii
+    return gap.min(axis=(1, 2))
+
+
+def choose_heading(
+    robot_xy: FloatArray,
+    theta: float,
+    preferred: FloatArray,
+    obstacles: tuple[MovingDisc, ...],
+    params: HeadingVoParams,
+    robot_radius: float,
+    previous: FloatArray | None = None,
+) -> HeadingChoice:
+    """The velocity outside every velocity obstacle closest to ``preferred``, for a robot
+    that must turn before it drives.
+
+    Candidates: ``n_heading`` headings round the circle (and the preferred one) times
+    ``n_speed`` speeds in [0, v_max], driven forwards after turning on the spot, or
+    backwards (up to ``reverse_max``) for headings more than 90 degrees off the robot's.
+    Each is checked by :func:`turn_then_go_contact`. Cost: ``|u - preferred|^2 / v_max^2
+    + turn_weight * turn time + reverse_weight (reversing) + hold_weight (1 - cos angle
+    to previous)``. The cheapest contact-free candidate wins; when there is none, the one
+    whose contact comes last (then the cheapest), flagged ``feasible = False``.
+    """
+    p = params
+    preferred = np.asarray(preferred, dtype=float)
+    headings = theta + np.arange(p.n_heading) * (2.0 * math.pi / p.n_heading)
+    if float(np.hypot(*preferred)) > 1e-9:
+        headings = np.append(headings, math.atan2(preferred[1], preferred[0]))
+    offset = np.remainder(headings - theta + math.pi, 2.0 * math.pi) - math.pi  # (-pi, pi]
+    speeds = np.linspace(0.0, p.v_max, p.n_speed)
+    h, s = (g.ravel() for g in np.meshgrid(headings, speeds, indexing="ij"))
+    o = np.repeat(offset, len(speeds))
+    turn = np.abs(o) / p.omega_max
+    reverse = np.zeros(len(h), dtype=bool)
+    if p.reverse_max > 0.0:
+        back = np.abs(o) > 0.5 * math.pi
+        rs = np.minimum(s[back], p.reverse_max)
+        h = np.concatenate((h, h[back]))
+        s = np.concatenate((s, rs))
+        turn = np.concatenate((turn, (math.pi - np.abs(o[back])) / p.omega_max))
+        reverse = np.concatenate((reverse, np.ones(len(rs), dtype=bool)))
+    turn = np.where(s > 0.0, turn, 0.0)  # standing still needs no turn
+    u = np.column_stack((s * np.cos(h), s * np.sin(h)))
+    contact = turn_then_go_contact(robot_xy, turn, u, obstacles, robot_radius, p.horizon)
+    cost = np.einsum("ki,ki->k", u - preferred, u - preferred) / (p.v_max * p.v_max)
+    cost += p.turn_weight * turn + p.reverse_weight * reverse
+    if previous is not None and float(np.hypot(*previous)) > 1e-9:
+        moving = s > 1e-9
+        ref = math.atan2(previous[1], previous[0])
+        cost += np.where(moving, p.hold_weight * 0.5 * (1.0 - np.cos(h - ref)), 0.0)
+    free = contact >= p.horizon
+    if free.any():
+        k = int(np.flatnonzero(free)[np.argmin(cost[free])])
+    else:  # the best escape: the largest clearance left over the horizon, then the cheapest
+        score = _worst_clearance(robot_xy, turn, u, obstacles, robot_radius, p.horizon)
+        k = int(np.lexsort((cost, -np.round(score, 3)))[0])
+    return HeadingChoice(
+        float(h[k]),
+        float(s[k]),
+        bool(reverse[k]),
+        bool(contact[k] >= p.horizon),
+        float(contact[k]),
+        float(turn[k]),
+    )
+
+
+def heading_command(
+    theta: float, choice: HeadingChoice, omega_max: float, gain: float = 2.0, align: float = 0.6
+) -> tuple[float, float]:
+    """The unicycle command (v, omega) that carries out ``choice``: turn towards its
+    heading (proportional, saturated at ``omega_max``), and drive at its speed scaled
+    down linearly with the heading error, to zero at ``align`` rad (backwards when the
+    choice reverses)."""
+    facing = choice.heading + (math.pi if choice.reverse else 0.0)
+    error = math.remainder(facing - theta, 2.0 * math.pi)
+    omega = max(-omega_max, min(omega_max, gain * error))
+    v = choice.speed * max(0.0, 1.0 - abs(error) / align)
+    return (-v if choice.reverse else v), omega
