@@ -266,6 +266,7 @@ class _Builder:
             r_oa=m.safety.r_oa_trigger,
             margin=margin,
             cruise=m.navigation.cruise_speed,
+            too_close=m.safety.r_es + 0.3,
         )
         policy = AvoidancePolicy(goal, params)
         self.avoidance_policies.append(policy)

@@ -154,9 +154,19 @@ class AvoidanceParams:
     mover_margin: float = 0.4
     """...closer than the corridor half-width ``margin`` plus this plus the mover's size
     (m; :class:`DodgeObstacle` keeps the same distance)."""
+    too_close: float = 0.9
+    """A spiral that lets any obstacle come closer than this (m, footprint clearance; the
+    compiler sets r_ES + 0.3) hands over to velocity obstacles, which keep the distance;
+    the spiral takes over again only beyond this plus ``too_close_hysteresis``."""
+    too_close_hysteresis: float = 0.5
+    closer_by: float = 0.3
+    """The spiral moves to another obstacle on the way once that one is this much closer
+    than its own (m): the SCP is recomputed when the situation changes."""
     trapped_after: float = 20.0
-    """A spiral that brings the robot no ``progress`` closer to the goal for this long is
-    trapped: the fallback planner takes over (s; inf: never)."""
+    """An avoidance that brings the robot no ``progress`` closer to the goal for this long,
+    with no obstacle around faster than ``fast_speed``, is trapped: the fallback planner
+    takes over (s; inf: never). Avoidances that follow one another within ``hold_off``
+    share this clock, so a loop of engagements and releases ends in the planner too."""
     progress: float = 0.5
     """Distance gain towards the goal that counts as progress (m)."""
 
@@ -190,6 +200,7 @@ class AvoidancePolicy:
         self.message = ""
         self._stamp: float | None = None
         self._mode: str | None = None
+        self._ended_at: float | None = None
 
     def decide(self, obstacles: Obstacles, pose: PoseEstimate) -> str | None:
         """The avoidance mode for this tick (SPIRAL or DODGE), None when none is needed."""
@@ -243,16 +254,18 @@ class AvoidancePolicy:
             session.missing_since = None
             track, obstacle = current
             blocked = path_blocked(robot, target_xy, obstacle, p.margin)
+            distance = float(np.hypot(*(target_xy - robot)))
+            if distance < session.best_distance - p.progress:
+                session.best_distance, session.best_at = distance, now
+            # trapped among static obstacles (fleeing a mover is no lack of progress)
+            still = all(speed[i] <= p.fast_speed for i in candidates)
+            if still and now - session.best_at > p.trapped_after:
+                return self._switch(
+                    REPLAN,
+                    track,
+                    f"trapped: no progress towards the goal for {p.trapped_after:.0f} s",
+                )
             if session.mode == SPIRAL:
-                distance = float(np.hypot(*(target_xy - robot)))
-                if distance < session.best_distance - p.progress:
-                    session.best_distance, session.best_at = distance, now
-                if now - session.best_at > p.trapped_after:
-                    return self._switch(
-                        REPLAN,
-                        track,
-                        f"trapped: no progress towards the goal for {p.trapped_after:.0f} s",
-                    )
                 if speed[track.id] > p.fast_speed:
                     return self._switch(DODGE, track, f"it moves at {speed[track.id]:.2f} m/s")
                 threat = self._threat(candidates, robot, target_xy, now, p.fast_speed)
@@ -261,8 +274,31 @@ class AvoidancePolicy:
                     return self._switch(
                         DODGE, other, f"obstacle {other.id} closing in at {speed[other.id]:.2f} m/s"
                     )
+                near = min(
+                    (t for t, _ in candidates.values()), key=lambda t: t.clearance, default=None
+                )
+                if near is not None and near.clearance < p.too_close:
+                    return self._switch(
+                        DODGE,
+                        near,
+                        f"obstacle {near.id} at {near.clearance:.2f} m < {p.too_close:.2f} m",
+                    )
+                closer = self._threat(candidates, robot, target_xy, now, None)
+                if (
+                    closer is not None
+                    and closer[0].id != track.id
+                    and closer[0].clearance < track.clearance - p.closer_by
+                ):
+                    other = closer[0]
+                    return self._switch(
+                        SPIRAL,
+                        other,
+                        f"obstacle {other.id} on the way at {other.clearance:.2f} m, closer "
+                        f"than obstacle {track.id} at {track.clearance:.2f} m",
+                    )
                 return SPIRAL
-            if speed[track.id] < p.slow_speed and blocked:
+            roomy = track.clearance > p.too_close + p.too_close_hysteresis
+            if speed[track.id] < p.slow_speed and blocked and roomy:
                 return self._switch(SPIRAL, track, f"it slowed to {speed[track.id]:.2f} m/s")
             harmless = (
                 track.danger < Danger.ON_PATH
@@ -289,7 +325,9 @@ class AvoidancePolicy:
         session.obstacle_id, session.mode, session.engaged_at = track.id, mode, now
         session.released, session.reason = False, ""
         session.missing_since = session.clear_since = None
-        session.best_distance, session.best_at = float(np.hypot(*(target_xy - robot))), now
+        if self._ended_at is None or now - self._ended_at > p.hold_off:
+            # a fresh avoidance; one that follows another at once keeps its trap clock
+            session.best_distance, session.best_at = float(np.hypot(*(target_xy - robot))), now
         session.count += 1
         self.message = (
             f"obstacle {track.id} ({track.kind}, {speed[track.id]:.2f} m/s) "
@@ -362,6 +400,7 @@ class AvoidancePolicy:
         session = self.session
         if session.obstacle_id is not None:
             self._released[session.obstacle_id] = now
+        self._ended_at = now
         session.obstacle_id, session.released = None, False
         session.missing_since = session.clear_since = None
         self.message = f"released: {reason}"
@@ -459,14 +498,23 @@ class AvoidObstacle(AvoidanceController):
         self.params = params or SpiralParams()
         self.law = SpiralAvoidance(self.params)
         self.last: SpiralOutput | None = None
+        self._obstacle_id: int | None = None
 
     def initialise(self) -> None:
         super().initialise()
-        # the release check uses the policy's corridor: engage and release stay exclusive
+        # the release check uses the policy's corridor: engage and release stay exclusive;
+        # the spiral never asks to come closer than that corridor's half-width (half the
+        # robot's width + r_ES + a margin): an e-stop beside a static obstacle never ends
+        margin = self.session.margin
         self.law = SpiralAvoidance(
-            dataclasses.replace(self.params, path_margin=self.session.margin)
+            dataclasses.replace(
+                self.params,
+                path_margin=margin,
+                min_clearance=max(self.params.min_clearance, margin),
+            )
         )
         self.last = None
+        self._obstacle_id = None
 
     def update(self) -> Status:
         obstacles: Obstacles | None = self.read(OBSTACLES)
@@ -474,6 +522,9 @@ class AvoidObstacle(AvoidanceController):
         track = _session_track(obstacles, self.session)
         if pose is None or track is None:
             return self.brake("obstacle not in view: braking")
+        if track.id != self._obstacle_id:  # the policy moved the spiral: anchor it anew
+            self.law.reset()
+            self._obstacle_id = track.id
         obstacle = obstacle_in_airport(track, pose.pose_a)
         target = self.goal.in_airport(pose)
         out = self.law.command(pose.pose_a, np.array([target.x, target.y]), obstacle, self.period)
@@ -516,9 +567,10 @@ class DodgeObstacle(AvoidanceController):
     static discs: the virtual wall points near the robot, one every ``zone_spacing``
     metres.
 
-    Sizes: the robot is a disc of radius the session's corridor half-width (half the
-    robot's width + r_ES + a margin) less ``static_inset`` against static obstacles, so
-    that it still fits the passages the policy lets it into; an obstacle that moves gets
+    Sizes: the robot is a disc (:attr:`radius`): the circle its footprint sweeps turning
+    on the spot plus the session's corridor margin beyond half its width (r_ES and a
+    margin) less ``static_inset``, so that no corner comes within r_ES of a static
+    obstacle (the e-stop would hold the robot there for good); an obstacle that moves gets
     up to ``mover_margin`` more (in proportion to its speed, full at ``mover_speed``), so
     that a walker never comes within r_ES: the e-stop would hold the robot still in its
     way.
@@ -550,6 +602,13 @@ class DodgeObstacle(AvoidanceController):
             mover_speed,
         )
         self.last: HeadingChoice | None = None
+
+    @property
+    def radius(self) -> float:
+        """The robot's disc: the circle its footprint sweeps turning on the spot, widened
+        as the corridor (r_ES and its margin) less ``static_inset``."""
+        lateral = self.session.margin - 0.5 * self.platform.width
+        return self.platform.turning_radius + lateral - self.static_inset
 
     def initialise(self) -> None:
         super().initialise()
@@ -587,7 +646,7 @@ class DodgeObstacle(AvoidanceController):
             preferred,
             discs,
             params,
-            self.session.margin - self.static_inset,
+            self.radius,
             previous,
         )
         self.last = choice
