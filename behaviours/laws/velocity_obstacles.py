@@ -21,6 +21,17 @@ whose velocity vector lies outside every velocity obstacle, and returns the one 
 the preferred command in the weighted norm ``(dv / v_max)^2 + (domega / omega_max)^2``.
 When every candidate is inside some cone it returns the one with the latest collision
 (then the closest to the preferred command), flagged ``feasible = False``.
+
+Turn, then go (:func:`choose_heading`, what the executive uses). A differential drive
+cannot take a velocity vector at once: it turns on the spot to the vector's heading
+(``|heading error| / omega_max`` seconds), then drives. Each candidate ground velocity
+(a heading round the full circle, a speed; backwards for headings behind) is checked with
+that delay: while the robot turns it stands still and the discs move, then the relative
+motion is linear again, so both phases have closed-form contact times
+(:func:`turn_then_go_contact`): the velocity obstacle of each disc, as seen after the turn.
+This is the "generalized velocity obstacle" of Wilkie, van den Berg and Manocha (2009)
+for one family of controls. It lets the robot sidestep a walker coming head-on, which
+the heading-lead model above, looking only about the current heading, does not.
 """
 
 from __future__ import annotations
@@ -207,8 +218,9 @@ class HeadingVoParams:
     n_heading: int = 36
     """Headings sampled round the full circle (10 degrees apart by default)."""
     n_speed: int = 7
-    turn_weight: float = 0.05
-    """Cost per second spent turning before the robot can drive off."""
+    turn_weight: float = 0.01
+    """Cost per second squared spent turning before the robot can drive off (quadratic:
+    a small turn towards the preferred velocity always pays)."""
     reverse_weight: float = 0.05
     """Extra cost of a reversing candidate."""
     hold_weight: float = 0.3
@@ -335,10 +347,11 @@ def choose_heading(
     that must turn before it drives.
 
     Candidates: ``n_heading`` headings round the circle (and the preferred one) times
-    ``n_speed`` speeds in [0, v_max], driven forwards after turning on the spot, or
+    ``n_speed`` speeds in [0, v_max] (and the preferred one), driven forwards after
+    turning on the spot, or
     backwards (up to ``reverse_max``) for headings more than 90 degrees off the robot's.
     Each is checked by :func:`turn_then_go_contact`. Cost: ``|u - preferred|^2 / v_max^2
-    + turn_weight * turn time + reverse_weight (reversing) + hold_weight (1 - cos angle
+    + turn_weight * turn time^2 + reverse_weight (reversing) + hold_weight (1 - cos angle
     to previous)``. The cheapest contact-free candidate wins; when there is none, the one
     whose contact comes last (then the cheapest), flagged ``feasible = False``.
     """
@@ -349,6 +362,7 @@ def choose_heading(
         headings = np.append(headings, math.atan2(preferred[1], preferred[0]))
     offset = np.remainder(headings - theta + math.pi, 2.0 * math.pi) - math.pi  # (-pi, pi]
     speeds = np.linspace(0.0, p.v_max, p.n_speed)
+    speeds = np.append(speeds, min(p.v_max, float(np.hypot(*preferred))))
     h, s = (g.ravel() for g in np.meshgrid(headings, speeds, indexing="ij"))
     o = np.repeat(offset, len(speeds))
     turn = np.abs(o) / p.omega_max
@@ -364,7 +378,7 @@ def choose_heading(
     u = np.column_stack((s * np.cos(h), s * np.sin(h)))
     contact = turn_then_go_contact(robot_xy, turn, u, obstacles, robot_radius, p.horizon)
     cost = np.einsum("ki,ki->k", u - preferred, u - preferred) / (p.v_max * p.v_max)
-    cost += p.turn_weight * turn + p.reverse_weight * reverse
+    cost += p.turn_weight * turn * turn + p.reverse_weight * reverse
     if previous is not None and float(np.hypot(*previous)) > 1e-9:
         moving = s > 1e-9
         ref = math.atan2(previous[1], previous[0])
