@@ -154,3 +154,56 @@ def test_line_discs_cover_the_segment(x0, y0, x1, y1, spacing):
     for s in np.linspace(0.0, 1.0, 50):
         p = np.array([x0 + s * (x1 - x0), y0 + s * (y1 - y0)])
         assert min(np.hypot(*(p - d.position)) - d.radius for d in discs) <= 1e-9
+
+
+def test_a_chaser_on_a_collision_course_engages_velocity_obstacles_from_behind():
+    """A walker coming at the robot from behind is neither on the way to the goal nor on
+    the robot's path ahead, but its motion meets the robot's (driving on, or standing):
+    velocity obstacles take over, and stay on while it keeps coming."""
+    chaser = track(1, -3.0, -1.0, v=(0.5, 0.15))
+    assert chaser.danger == Danger.NONE and chaser.clearance < 2.5 + 2.0 * 0.5
+    policy = AvoidancePolicy(GOAL, AvoidanceParams())
+    assert policy.decide(obstacles(0.0, chaser), pose()) == DODGE
+    for k in range(1, 15):  # it follows the robot: never harmless
+        assert policy.decide(obstacles(0.1 * k, chaser), pose()) == DODGE
+    walking_away = AvoidancePolicy(GOAL, AvoidanceParams())
+    assert walking_away.decide(obstacles(0.0, track(1, -3.0, -1.0, v=(-0.5, 0.0))), pose()) is None
+
+
+def test_the_spiral_hands_over_to_velocity_obstacles_when_anything_comes_too_close():
+    """The spiral steers round one obstacle; another one within ``too_close`` (r_ES +
+    0.3 m in the compiled tree) hands over to velocity obstacles, which see every
+    obstacle; the spiral comes back only with ``too_close_hysteresis`` to spare."""
+    params = AvoidanceParams(too_close=0.9, too_close_hysteresis=0.5)
+    policy = AvoidancePolicy(GOAL, params)
+    ahead = track(1, 3.5, 0.0)
+    assert policy.decide(obstacles(0.0, ahead), pose()) == SPIRAL
+    beside = track(2, 0.0, -2.0)  # 0.9 m: not on the way, but too close
+    assert beside.clearance == pytest.approx(0.9)
+    assert policy.decide(obstacles(0.1, ahead, track(2, 0.0, -1.95)), pose()) == DODGE
+    assert policy.session.obstacle_id == 2 and "< 0.90 m" in policy.message
+
+
+def test_the_spiral_moves_to_a_closer_obstacle_on_the_way():
+    policy = AvoidancePolicy(GOAL, AvoidanceParams(closer_by=0.3))
+    assert policy.decide(obstacles(0.0, track(1, 3.4, 0.3)), pose()) == SPIRAL
+    nearer = track(2, 2.6, -0.2)
+    assert policy.decide(obstacles(0.1, track(1, 3.4, 0.3), nearer), pose()) == SPIRAL
+    assert policy.session.obstacle_id == 2 and "closer than obstacle 1" in policy.message
+
+
+def test_back_to_back_avoidances_share_the_trap_clock():
+    """An engage/release loop that makes no progress ends in the planner: an avoidance
+    that starts within ``hold_off`` of the last one keeps its trap clock."""
+    params = AvoidanceParams(trapped_after=5.0, hold_off=1.0)
+    policy = AvoidancePolicy(GOAL, params)
+    modes = []
+    for k in range(30):
+        t = 0.25 * k
+        ident = 1 + (k // 4) % 2  # two obstacles taking turns in the way
+        mode = policy.decide(obstacles(t, track(ident, 3.5, 0.0)), pose())
+        modes.append(mode)
+        if mode == SPIRAL and k % 4 == 3:
+            policy.session.released, policy.session.reason = True, "released"
+    assert REPLAN in modes
+    assert modes.index(REPLAN) * 0.25 <= 5.0 + 1.0 + 0.25
