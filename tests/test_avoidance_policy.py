@@ -207,3 +207,15 @@ def test_back_to_back_avoidances_share_the_trap_clock():
             policy.session.released, policy.session.reason = True, "released"
     assert REPLAN in modes
     assert modes.index(REPLAN) * 0.25 <= 5.0 + 1.0 + 0.25
+
+
+def test_a_slow_walker_crossing_in_front_is_dodged_one_walking_off_is_not():
+    """Between slow_speed and fast_speed the spiral would be chosen by speed alone; a walker
+    crossing the robot's way at 0.12 m/s is on a collision course (the spiral would let it
+    walk into the robot), one walking off the track is not."""
+    crossing = track(1, 3.0, -2.2, v=(0.0, 0.12))
+    assert crossing.clearance < 2.5 + 2.0 * 0.12
+    policy = AvoidancePolicy(GOAL, AvoidanceParams())
+    assert policy.decide(obstacles(0.0, crossing), pose()) == DODGE
+    leaving = AvoidancePolicy(GOAL, AvoidanceParams())
+    assert leaving.decide(obstacles(0.0, track(1, 3.0, -2.2, v=(0.0, -0.12))), pose()) is None

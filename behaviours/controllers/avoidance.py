@@ -178,8 +178,11 @@ class AvoidancePolicy:
     smallest clearance among those under r_OA-trigger that are on the way to the goal —
     the straight corridor robot -> goal (the thesis's distance-to-target check, figure
     4.15) — or that move onto the robot's path (track danger ``ON_PATH`` or worse and
-    faster than ``slow_speed``: a trolley coming from the side). Mode: velocity obstacles
-    when the obstacle moves faster than ``fast_speed``, else the spiral.
+    faster than ``slow_speed``: a trolley coming from the side), or that are on a
+    collision course with it (:meth:`_collision_course`). Mode: velocity obstacles when
+    the obstacle moves faster than ``fast_speed`` or is on a collision course, else the
+    spiral; a spiral also hands over to velocity obstacles when any obstacle comes
+    within ``too_close``.
 
     While engaged: the spiral ends when its release condition holds (set by the
     controller in the session) or the track is lost; velocity obstacles end once the
@@ -268,6 +271,12 @@ class AvoidancePolicy:
             if session.mode == SPIRAL:
                 if speed[track.id] > p.fast_speed:
                     return self._switch(DODGE, track, f"it moves at {speed[track.id]:.2f} m/s")
+                if self._collision_course(obstacle, speed[track.id], robot, target_xy):
+                    return self._switch(
+                        DODGE,
+                        track,
+                        f"it moves at {speed[track.id]:.2f} m/s on a collision course",
+                    )
                 threat = self._threat(candidates, robot, target_xy, now, p.fast_speed)
                 if threat is not None and threat[0].id != track.id:
                     other = threat[0]
@@ -321,7 +330,9 @@ class AvoidancePolicy:
             )
             return None
         track, obstacle = threat
-        mode = DODGE if speed[track.id] > p.fast_speed else SPIRAL
+        # a mover is dodged: fast, or on a collision course (the spiral would let it in)
+        coming = self._collision_course(obstacle, speed[track.id], robot, target_xy)
+        mode = DODGE if speed[track.id] > p.fast_speed or coming else SPIRAL
         session.obstacle_id, session.mode, session.engaged_at = track.id, mode, now
         session.released, session.reason = False, ""
         session.missing_since = session.clear_since = None
@@ -376,8 +387,9 @@ class AvoidancePolicy:
         self, obstacle: SpiralObstacle, speed: float, robot: np.ndarray, target_xy: np.ndarray
     ) -> bool:
         """Whether the obstacle (low-passed ``speed``), at its tracked velocity, comes
-        within the robot's safety distance in ``horizon`` seconds, the robot driving to the
-        goal at ``cruise`` or standing still (a velocity-obstacle test of both motions)."""
+        within the robot's safety distance in ``horizon`` seconds, the robot standing
+        still or, unless the obstacle walks away from it, driving to the goal at
+        ``cruise`` (a velocity-obstacle test of both motions)."""
         p = self.params
         if speed <= p.slow_speed:
             return False
@@ -385,9 +397,11 @@ class AvoidancePolicy:
         to_goal = target_xy - robot
         distance = float(np.hypot(*to_goal))
         drive = to_goal / distance * min(p.cruise, distance) if distance > 1e-6 else to_goal
+        # one walking away from the robot is only caught up with: the spiral's case
+        receding = float(np.dot(obstacle.velocity, robot - np.array(obstacle.position))) < 0.0
+        motions = (np.zeros(2),) if receding else (drive, np.zeros(2))
         return any(
-            time_to_collision(robot, velocity, disc, p.margin) < p.horizon
-            for velocity in (drive, np.zeros(2))
+            time_to_collision(robot, velocity, disc, p.margin) < p.horizon for velocity in motions
         )
 
     def _switch(self, mode: str, track: TrackedObstacle, why: str) -> str:
