@@ -271,7 +271,12 @@ class _Builder:
         policy = AvoidancePolicy(goal, params)
         self.avoidance_policies.append(policy)
         session, make = policy.session, self.options.avoider
-        dodge = (make or DodgeObstacle)(goal, session, m.platform, self.period)
+        if make is None:  # velocity obstacles never slower than the navigation's cruise
+            dodge = DodgeObstacle(
+                goal, session, m.platform, self.period, nu_min=m.navigation.cruise_speed
+            )
+        else:
+            dodge = make(goal, session, m.platform, self.period)
         spiral = (make or AvoidObstacle)(goal, session, m.platform, self.period)
         replan = FollowPlannedPath(goal, session, m, self.period, self.params)
         return [

@@ -32,7 +32,10 @@ the e-stop, faults and the geofence always win over the tree):
    the footprint to the nearest laser return *in the corridor the robot drives into*: ahead
    of the axle for v > 0, behind it for v < 0, and within half the robot's width + r_es
    of its axis (r_c itself when only r_c and its bearing are known and the bearing lies
-   that way). Driving away from an obstacle, or sideways past it, is not slowed, so
+   that way). A tracked mover that will enter that corridor within ``mover_horizon``
+   (default 3 s) at its tracked velocity counts as in it, with its current clearance: a
+   walker about to cross the robot's way slows it before stepping in front of it.
+   Driving away from an obstacle, or sideways past a static one, is not slowed, so
    avoidance can outpace or sidestep an obstacle closing in.
    The floor (``slowdown_floor``, default 0.2) keeps obstacle avoidance able to creep round
    an obstacle; the e-stop takes over below r_es anyway. Only v is scaled; omega and the
@@ -111,6 +114,7 @@ from executive.core.records import (
     PanTiltRate,
     PoseEstimate,
     SensorFrame,
+    TrackedObstacle,
     VelocityCommand,
 )
 
@@ -135,6 +139,9 @@ GEOFENCE_STOP = "geofence-stop"
 GEOFENCE_CLEAR = "geofence-clear"
 LIMIT = "limit"
 LIMIT_END = "limit-end"
+
+MOVER_SPEED = 0.1
+"""A track faster than this (m/s) counts as moving for the slowdown's corridor test."""
 
 _CIRCLE_SEGMENTS = 16  # per quarter circle; zone circles are circumscribed, never smaller
 _TOL = 1e-9
@@ -438,6 +445,7 @@ class SafetyLayer:
         geofence_buffer: float = 0.05,
         escape_sweep: float = 0.05,
         slowdown_floor: float = 0.2,
+        mover_horizon: float = 3.0,
         horizon: float | None = None,
         event_hold: float = 0.5,
     ) -> None:
@@ -462,6 +470,7 @@ class SafetyLayer:
         self.buffer = min(float(geofence_buffer), self.margin)
         self.escape_sweep = float(escape_sweep)
         self.slowdown_floor = float(slowdown_floor)
+        self.mover_horizon = float(mover_horizon)
         self.horizon = float(horizon) if horizon is not None else max(2.0 * self.period, 0.1)
         self.rates = {
             cid: (spec.pan_rate, spec.tilt_rate) for cid, spec in platform.cameras.items()
@@ -715,7 +724,8 @@ class SafetyLayer:
 
     def _closing_clearance(self, obstacles: Obstacles, v: float) -> float:
         """r_d: the footprint's distance to the nearest return in the corridor the motion
-        ``v`` drives into (NaN, unknown, stays NaN)."""
+        ``v`` drives into, or to a tracked mover that will cross that corridor within
+        ``mover_horizon`` (NaN, unknown, stays NaN)."""
         r_c = obstacles.closest
         if not r_c < self.safety.r_oa_trigger or v == 0.0:
             return r_c
@@ -725,9 +735,35 @@ class SafetyLayer:
         platform = self.mission.platform
         half = 0.5 * platform.width + self.safety.r_es
         ahead = points[(points[:, 0] * v > 0.0) & (np.abs(points[:, 1]) <= half)]
-        if len(ahead) == 0:
-            return math.inf
-        return float(footprint_distances(ahead, platform.length, platform.width).min())
+        r_d = math.inf
+        if len(ahead):
+            r_d = float(footprint_distances(ahead, platform.length, platform.width).min())
+        for track in obstacles.tracks:
+            if track.clearance < r_d and self._crosses_corridor(track, v, half):
+                r_d = track.clearance
+        return r_d
+
+    def _crosses_corridor(self, track: TrackedObstacle, v: float, half: float) -> bool:
+        """Whether a moving track ahead of the robot enters the corridor it drives into
+        (``x v > 0``, ``|y| <= half`` + the track's size) within ``mover_horizon``, moving
+        relative to the robot at its tracked velocity less the robot's own ``v`` (the
+        motion term of speed-and-separation monitoring: a walker about to step in front
+        of the robot slows it down before it gets there, not once it is there). A mover
+        behind, chasing, never slows the robot down: that would let it catch up."""
+        if track.kind == "zone" or track.speed < MOVER_SPEED:
+            return False
+        (x, y), (vx, vy) = track.position, track.velocity
+        if x * v <= 0.0:
+            return False
+        reach = half + track.size
+        if abs(y) <= reach:
+            t0 = 0.0
+        elif abs(vy) < 1e-9 or y * vy > 0.0:
+            return False  # beside the corridor and not moving towards it
+        else:
+            t0 = (abs(y) - reach) / abs(vy)
+        # still ahead of the axle when it enters the corridor (x moves at vx - v)
+        return t0 <= self.mover_horizon and (x + (vx - v) * t0) * v > 0.0
 
     def _pan_tilt(
         self, requested: Mapping[str, PanTiltRate], clipped: set[str]

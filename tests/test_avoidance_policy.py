@@ -14,13 +14,17 @@ from behaviours.controllers.avoidance import (
     SPIRAL,
     AvoidanceParams,
     AvoidancePolicy,
+    DodgeObstacle,
     obstacle_discs,
 )
 from behaviours.goals import Goal
 from behaviours.laws.spiral import SpiralObstacle
+from executive.compiler import CompileOptions, compile_mission
 from executive.core.frames import Pose2
+from executive.core.loader import load_mission
 from executive.core.model import Frame
 from executive.core.records import Danger, Obstacles, PoseEstimate, TrackedObstacle
+from tests.conftest import MISSIONS
 
 GOAL = Goal(Pose2(20.0, 0.0, 0.0), Frame.AIRPORT)
 
@@ -219,3 +223,15 @@ def test_a_slow_walker_crossing_in_front_is_dodged_one_walking_off_is_not():
     assert policy.decide(obstacles(0.0, crossing), pose()) == DODGE
     leaving = AvoidancePolicy(GOAL, AvoidanceParams())
     assert leaving.decide(obstacles(0.0, track(1, 3.0, -2.2, v=(0.0, -0.12))), pose()) is None
+
+
+def test_the_compiled_velocity_obstacles_never_dodge_slower_than_the_cruise_speed():
+    """A robot that slows down to dodge a slow walker crossing its way stays in that
+    walker's way for longer (campaign episode 190: a 0.14 m/s trolley): the compiler
+    gives every velocity-obstacle controller the navigation's cruise speed as its
+    floor."""
+    mission = load_mission(MISSIONS / "track" / "avoidance-leg.xml")
+    root = compile_mission(mission, CompileOptions(avoidance=True)).root
+    dodges = [node for node in root.iterate() if isinstance(node, DodgeObstacle)]
+    assert dodges
+    assert all(d.nu_min == mission.navigation.cruise_speed for d in dodges)

@@ -29,6 +29,7 @@ from executive.core.records import (
     PanTiltRate,
     PoseEstimate,
     SensorFrame,
+    TrackedObstacle,
     VelocityCommand,
 )
 from executive.safety import MotionLimits, SafetyLayer
@@ -841,3 +842,50 @@ def test_slowdown_only_slows_motion_towards_the_obstacle():
             b.t = round(b.t + PERIOD, 9)
         assert lay.status.speed_scale == pytest.approx(scale)
         assert out.v == pytest.approx(v * scale)
+
+
+def _walker(x: float, y: float, vx: float, vy: float) -> TrackedObstacle:
+    """A tracked person in the robot frame: circle of 0.3 m, footprint clearance from the
+    1.4 m x 1.0 m footprint's front corner region (approximately, enough for the scale)."""
+    clearance = math.hypot(max(0.0, abs(x) - 0.7), max(0.0, abs(y) - 0.5)) - 0.3
+    return TrackedObstacle(1, "circle", (x, y), (vx, vy), np.eye(4), 0.3, clearance, 5.0)
+
+
+@pytest.mark.parametrize(
+    "walker, v, slowed",
+    [
+        # 1.8 m ahead, 2.2 m to the left, walking right across the way at 0.5 m/s: in the
+        # corridor (half-width 0.5 + r_ES + 0.3 m) in under 3 s -> slowed before it is there
+        ((1.8, 2.2, 0.0, -0.5), 1.0, True),
+        # the same walker walking away from the way: not slowed
+        ((1.8, 2.2, 0.0, 0.5), 1.0, False),
+        # the same walker, but too slow to reach the corridor within the horizon
+        ((1.8, 2.2, 0.0, -0.2), 1.0, False),
+        # a chaser behind the robot, coming up the corridor: never slows the robot down
+        ((-1.8, 0.3, 0.8, 0.0), 1.0, False),
+        # ...but it does slow the robot backing up towards it
+        ((-1.8, 0.3, 0.8, 0.0), -0.5, True),
+        # a walker crossing ahead that the robot, at this speed, passes before it gets
+        # there: it enters the corridor behind the axle
+        ((0.9, 2.0, 0.0, -0.6), 1.5, False),
+    ],
+)
+def test_slowdown_for_a_mover_about_to_enter_the_corridor(walker, v, slowed):
+    """Speed-and-separation with the tracked motion: a mover ahead that will step into
+    the corridor within ``mover_horizon`` (3 s), moving relative to the robot, slows it
+    now; one walking away, too slow, chasing from behind, or passed first does not."""
+    x, y, vx, vy = walker
+    mover = _walker(x, y, vx, vy)
+    lay = layer()
+    b = Bench(lay)
+    points = np.array([[x, y]])
+    for _ in range(60):
+        lay.filter(
+            cmd(v),
+            now=b.t,
+            frame=b.frame(0.0, False),
+            pose=b.pose(),
+            obstacles=Obstacles(b.t, mover.clearance, math.atan2(y, x), points, (mover,)),
+        )
+        b.t = round(b.t + PERIOD, 9)
+    assert (lay.status.speed_scale < 1.0) == slowed

@@ -14,6 +14,7 @@ from behaviours.laws.velocity_obstacles import (
     HeadingVoParams,
     MovingDisc,
     choose_heading,
+    crosses_ahead,
     heading_command,
     turn_then_go_contact,
 )
@@ -161,3 +162,49 @@ def test_a_slow_crossing_walker_is_let_through_or_passed_behind():
     closest, x = _closed_loop((5.0, -3.0), (0.0, 0.3))
     assert closest > RADIUS + 0.3 + MARGIN - 0.05
     assert x > 11.5
+
+
+def test_crosses_ahead_flags_the_way_in_front_of_a_crossing_walker():
+    """A walker 3 m ahead and 3 m to the left walks right at 0.5 m/s. Driving east at
+    0.6 m/s the robot crosses its way at t = 5 s, 0.5 m (1 s) in front of it: flagged.
+    Heading 30 degrees left it crosses where the walker has already been (behind it);
+    heading 60 degrees right it crosses 3.2 m in front of it, more than ``window`` (6 s)
+    of the walker's motion: harmless; driving parallel to its way never crosses it."""
+    walker = MovingDisc((3.0, 3.0), (0.0, -0.5), 0.3)
+    headings = np.radians([0.0, 30.0, -60.0, 90.0])
+    u = 0.6 * np.column_stack((np.cos(headings), np.sin(headings)))
+    flagged = crosses_ahead(np.zeros(2), np.zeros(4), u, (walker,), 0.8, 20.0, 6.0)
+    assert flagged.tolist() == [True, False, False, False]
+    # turning for 7 s first, the walker is past the crossing point: behind it
+    late = crosses_ahead(np.zeros(2), np.array([7.0]), u[:1], (walker,), 0.8, 20.0, 6.0)
+    assert late.tolist() == [False]
+
+
+def test_crosses_ahead_ignores_movers_already_on_the_robots_way():
+    """A chaser (its way runs through the robot) and a static disc have no way to cross."""
+    chaser = MovingDisc((-3.0, 0.2), (0.5, 0.0), 0.3)
+    static = MovingDisc((3.0, 3.0), (0.0, 0.0), 0.5)
+    headings = np.linspace(-math.pi, math.pi, 13)
+    u = 0.6 * np.column_stack((np.cos(headings), np.sin(headings)))
+    assert not crosses_ahead(np.zeros(2), np.zeros(13), u, (chaser, static), 0.8, 20.0, 6.0).any()
+
+
+@pytest.mark.parametrize("side", [1.0, -1.0])
+def test_the_robot_passes_behind_a_walker_about_to_cross_its_way(side):
+    """Heading to a goal due east, a walker 3 m ahead and 2 m to one side walks towards
+    the centre line at 0.3 m/s (``side``: its direction). Without ``behind_weight`` the
+    cheapest contact-free velocity keeps straight on and crosses 0.2 m in front of it;
+    with it the robot bears towards the side the walker comes from, behind it. The two
+    sides are mirror images."""
+    walker = MovingDisc((3.0, -2.0 * side), (0.0, 0.3 * side), 0.3)
+    preferred = np.array([0.6, 0.0])
+    params = HeadingVoParams(v_max=0.6, reverse_max=0.0)
+    choice = choose_heading(np.zeros(2), 0.0, preferred, (walker,), params, 0.8)
+    assert choice.feasible and math.sin(choice.heading) * side < -0.1
+    neutral = HeadingVoParams(v_max=0.6, reverse_max=0.0, behind_weight=0.0)
+    straight = choose_heading(np.zeros(2), 0.0, preferred, (walker,), neutral, 0.8)
+    assert straight.feasible and math.sin(straight.heading) * side >= 0.0
+    look = (params.behind_lookahead, params.behind_window)
+    for c, ahead in ((choice, False), (straight, True)):
+        turn, u = np.array([c.turn_time]), c.velocity[None]
+        assert crosses_ahead(np.zeros(2), turn, u, (walker,), 0.8, *look).tolist() == [ahead]

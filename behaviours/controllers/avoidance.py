@@ -577,7 +577,9 @@ class DodgeObstacle(AvoidanceController):
     watch). The preferred velocity heads for the goal; the chosen one is the closest to it
     whose motion meets no obstacle within the horizon. Its top speed is ``escape_factor``
     x the fastest obstacle's speed (at least ``nu_min``, at most the platform's): a robot
-    no faster than a trolley chasing it cannot get away. Forbidden-zone walls count as
+    no faster than a trolley chasing it cannot get away. The compiler sets ``nu_min`` to
+    the navigation's cruise speed: a robot that slows down to dodge a slow walker crossing
+    its way stays in that walker's way for longer. Forbidden-zone walls count as
     static discs: the virtual wall points near the robot, one every ``zone_spacing``
     metres.
 

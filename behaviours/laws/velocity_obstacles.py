@@ -51,6 +51,7 @@ __all__ = [
     "VoParams",
     "choose_heading",
     "choose_velocity",
+    "crosses_ahead",
     "heading_command",
     "in_velocity_obstacle",
     "time_to_collision",
@@ -226,6 +227,15 @@ class HeadingVoParams:
     hold_weight: float = 0.3
     """Cost of leaving the previously chosen velocity, per unit of ``(1 - cos)`` of the
     angle between them: no dithering between passing left and passing right."""
+    behind_weight: float = 0.5
+    """Cost of a candidate that crosses a mover's path ahead of it (see
+    :func:`crosses_ahead`): between two equally short ways round a crossing walker, pass
+    behind it, as people do; the way ahead of it closes while the robot takes it."""
+    behind_lookahead: float = 10.0
+    """Crossings of a mover's path later than this (s) carry no cost."""
+    behind_window: float = 6.0
+    """A crossing counts as ahead of the mover when the mover would reach the crossing
+    point within this time (s) after the robot; farther ahead it is harmless."""
 
     def __post_init__(self) -> None:
         if not (self.v_max > 0.0 and self.reverse_max >= 0.0):
@@ -334,6 +344,53 @@ def _worst_clearance(
     return gap.min(axis=(1, 2))
 
 
+def crosses_ahead(
+    robot_xy: FloatArray,
+    turn_time: FloatArray,
+    velocity: FloatArray,
+    obstacles: tuple[MovingDisc, ...],
+    robot_radius: float,
+    lookahead: float,
+    window: float,
+    min_speed: float = 0.05,
+) -> FloatArray:
+    """Whether each turn-then-go candidate crosses some mover's path ahead of it (K,) bool.
+
+    A mover (speed >= ``min_speed``) at p with velocity w sweeps the line through p along
+    ŵ. The candidate (turn for ``turn_time``, then drive at ``velocity`` u from the robot's
+    position r0) has the signed lateral offset ``s(t) = ŵ x (r0 - p) + (ŵ x u)(t - t1)``
+    from that line, zero at ``t_c = t1 - ŵ x (r0 - p) / (ŵ x u)``; there the robot is
+    ``g = ŵ . (r(t_c) - p) - |w| t_c`` ahead of the mover along its way. The candidate
+    crosses ahead when ``t1 <= t_c <= lookahead`` and ``0 < g < |w| window`` (the mover
+    would reach the crossing point less than ``window`` seconds after the robot). A robot
+    already on the mover's way (``|s(t1)|`` under the two radii: a chaser, a walker coming
+    head-on) has nothing to cross.
+    """
+    k = len(turn_time)
+    out = np.zeros(k, dtype=bool)
+    r0 = np.asarray(robot_xy, dtype=float)
+    u = np.asarray(velocity, dtype=float)
+    t1 = np.asarray(turn_time, dtype=float)
+    for o in obstacles:
+        w = np.asarray(o.velocity, dtype=float)
+        speed = float(np.hypot(*w))
+        if speed < min_speed:
+            continue
+        wh = w / speed
+        rel = r0 - np.asarray(o.position, dtype=float)
+        s0 = wh[0] * rel[1] - wh[1] * rel[0]
+        if abs(s0) < robot_radius + o.radius:
+            continue
+        ds = wh[0] * u[:, 1] - wh[1] * u[:, 0]  # (K,)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t_c = t1 - s0 / ds
+        valid = (np.abs(ds) > 1e-9) & (t_c >= t1) & (t_c <= lookahead)
+        drive = np.where(valid, t_c - t1, 0.0)
+        along = float(wh @ rel) + (u @ wh) * drive - speed * np.where(valid, t_c, 0.0)
+        out |= valid & (along > 0.0) & (along < speed * window)
+    return out
+
+
 def choose_heading(
     robot_xy: FloatArray,
     theta: float,
@@ -352,7 +409,8 @@ def choose_heading(
     backwards (up to ``reverse_max``) for headings more than 90 degrees off the robot's.
     Each is checked by :func:`turn_then_go_contact`. Cost: ``|u - preferred|^2 / v_max^2
     + turn_weight * turn time^2 + reverse_weight (reversing) + hold_weight (1 - cos angle
-    to previous)``. The cheapest contact-free candidate wins; when there is none, the one
+    to previous) + behind_weight (crosses a mover's way ahead of it,`` :func:`crosses_ahead`
+    ``)``. The cheapest contact-free candidate wins; when there is none, the one
     whose contact comes last (then the cheapest), flagged ``feasible = False``.
     """
     p = params
@@ -383,6 +441,11 @@ def choose_heading(
         moving = s > 1e-9
         ref = math.atan2(previous[1], previous[0])
         cost += np.where(moving, p.hold_weight * 0.5 * (1.0 - np.cos(h - ref)), 0.0)
+    if p.behind_weight > 0.0 and obstacles:
+        ahead = crosses_ahead(
+            robot_xy, turn, u, obstacles, robot_radius, p.behind_lookahead, p.behind_window
+        )
+        cost += p.behind_weight * ahead
     free = contact >= p.horizon
     if free.any():
         k = int(np.flatnonzero(free)[np.argmin(cost[free])])
