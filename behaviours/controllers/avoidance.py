@@ -246,8 +246,17 @@ class AvoidancePolicy:
         if session.obstacle_id is not None:
             if session.released:
                 return self._end(now, session.reason)
-            if session.mode == REPLAN:
-                return REPLAN  # the planner ends it (session.released)
+            if session.mode == REPLAN:  # the planner ends it (session.released)...
+                coming = self._mover_coming(candidates, robot, target_xy)
+                if coming is not None:  # ...unless a mover comes: its costmap is a snapshot
+                    session.best_at = now  # the dodge gets its own trapped_after
+                    return self._switch(
+                        DODGE,
+                        coming,
+                        f"obstacle {coming.id} moves at {speed[coming.id]:.2f} m/s on a "
+                        "collision course while the planner drives",
+                    )
+                return REPLAN
             current = candidates.get(session.obstacle_id)
             if current is None:
                 session.missing_since = session.missing_since or now
@@ -381,6 +390,25 @@ class AvoidancePolicy:
                 continue
             if best is None or track.clearance < best[0].clearance:
                 best = (track, obstacle)
+        return best
+
+    def _mover_coming(
+        self,
+        candidates: dict[int, tuple[TrackedObstacle, SpiralObstacle]],
+        robot: np.ndarray,
+        target_xy: np.ndarray,
+    ) -> TrackedObstacle | None:
+        """The closest obstacle under r_OA (plus its anticipation) whose motion meets the
+        robot's (:meth:`_collision_course`), if any."""
+        p, best = self.params, None
+        for track, obstacle in candidates.values():
+            speed = self._speeds[track.id]
+            if track.clearance >= p.r_oa + p.anticipation * speed:
+                continue
+            if not self._collision_course(obstacle, speed, robot, target_xy):
+                continue
+            if best is None or track.clearance < best.clearance:
+                best = track
         return best
 
     def _collision_course(
