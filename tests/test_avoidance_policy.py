@@ -1,6 +1,7 @@
 """The avoidance policy (which obstacle, which mode, when it ends) on synthetic tracks,
 the velocity-obstacle controller's discs, and the adversarial trolley's give-up."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -14,6 +15,7 @@ from behaviours.controllers.avoidance import (
     SPIRAL,
     AvoidanceParams,
     AvoidancePolicy,
+    AvoidanceSession,
     DodgeObstacle,
     obstacle_discs,
 )
@@ -255,3 +257,24 @@ def test_a_mover_coming_while_the_planner_drives_is_dodged_without_a_ping_pong()
     first = after.index(DODGE)  # once its low-passed speed says it moves (< 1 s)
     assert first < 10 and "while the planner drives" in messages[first]
     assert after[:first] == [REPLAN] * first and after[first:] == [DODGE] * (40 - first)
+
+
+def test_velocity_obstacles_remember_how_fast_a_track_was():
+    """A chaser passing a static obstacle merges with it into one cluster and its track's
+    velocity collapses for a moment (campaign episode 199): for ``velocity_memory``
+    seconds the controller keeps the speed it had, in the direction the track moves
+    now (or the old velocity when it seems to stand), then believes the track again."""
+    mission = load_mission(MISSIONS / "track" / "avoidance-leg.xml")
+    dodge = DodgeObstacle(GOAL, AvoidanceSession(margin=1.4), mission.platform, 0.02)
+    chaser = SpiralObstacle((3.0, 0.0), (-0.45, 0.0), 0.4, ident=7)
+    assert dodge._remembered(chaser, 0.0) == chaser
+    merged = dataclasses.replace(chaser, velocity=(-0.06, -0.08), size=0.9)
+    kept = dodge._remembered(merged, 0.5)
+    assert kept.speed == pytest.approx(0.45)
+    assert kept.velocity[0] / kept.velocity[1] == pytest.approx(0.06 / 0.08)
+    standing = dodge._remembered(dataclasses.replace(chaser, velocity=(0.0, 0.01)), 1.0)
+    assert standing.velocity == chaser.velocity
+    later = dataclasses.replace(chaser, velocity=(-0.1, 0.0))
+    assert dodge._remembered(later, 1.6) == later  # the memory is over
+    other = SpiralObstacle((3.0, 1.0), (0.0, 0.0), 0.4, ident=8)  # per track
+    assert dodge._remembered(other, 1.6) == other

@@ -618,6 +618,12 @@ class DodgeObstacle(AvoidanceController):
     up to ``mover_margin`` more (in proportion to its speed, full at ``mover_speed``), so
     that a walker never comes within r_ES: the e-stop would hold the robot still in its
     way.
+
+    Velocity memory: a track slower than it was within the last ``velocity_memory``
+    seconds keeps that speed (in the direction it moves now, or the old velocity if it
+    seems to stand). When a chaser passes a static obstacle the two merge into one
+    cluster and the track's velocity collapses for a second or two; believing it, the
+    robot stopped fleeing and turned for the goal (campaign episode 199).
     """
 
     def __init__(
@@ -634,9 +640,12 @@ class DodgeObstacle(AvoidanceController):
         static_inset: float = 0.2,
         mover_margin: float = 0.4,
         mover_speed: float = 0.3,
+        velocity_memory: float = 1.5,
         name: str = "velocity obstacles",
     ) -> None:
         super().__init__(goal, session, platform, period, name)
+        self.velocity_memory = velocity_memory
+        self._fastest: dict[int | None, tuple[float, tuple[float, float]]] = {}
         self.platform, self.nu_min = platform, nu_min
         self.escape_factor, self.reach = escape_factor, reach
         self.zone_spacing, self.reverse_max = zone_spacing, reverse_max
@@ -657,6 +666,25 @@ class DodgeObstacle(AvoidanceController):
     def initialise(self) -> None:
         super().initialise()
         self.last = None
+        self._fastest.clear()
+
+    def _remembered(self, obstacle: SpiralObstacle, now: float) -> SpiralObstacle:
+        """``obstacle`` with its velocity memory applied (class docstring)."""
+        record = self._fastest.get(obstacle.ident)
+        speed = obstacle.speed
+        if record is None or now - record[0] > self.velocity_memory:
+            self._fastest[obstacle.ident] = (now, obstacle.velocity)
+            return obstacle
+        remembered = math.hypot(*record[1])
+        if speed >= remembered:
+            self._fastest[obstacle.ident] = (now, obstacle.velocity)
+            return obstacle
+        if speed > 0.05:
+            k = remembered / speed
+            velocity = (obstacle.velocity[0] * k, obstacle.velocity[1] * k)
+        else:
+            velocity = record[1]
+        return dataclasses.replace(obstacle, velocity=velocity)
 
     def update(self) -> Status:
         obstacles: Obstacles | None = self.read(OBSTACLES)
@@ -665,10 +693,13 @@ class DodgeObstacle(AvoidanceController):
             return self.brake("no pose or obstacles: braking")
         robot = pose.pose_a
         near = [
-            obstacle_in_airport(t, robot)
+            self._remembered(obstacle_in_airport(t, robot), obstacles.stamp)
             for t in obstacles.tracks
             if t.clearance < self.reach and t.kind != "zone"
         ]
+        if len(self._fastest) > 4 * len(near) + 16:  # forget tracks long gone
+            horizon = obstacles.stamp - self.velocity_memory
+            self._fastest = {k: r for k, r in self._fastest.items() if r[0] >= horizon}
         fastest = max((o.speed for o in near), default=0.0)
         v_max = min(self.platform.max_speed, max(self.nu_min, self.escape_factor * fastest))
         params = HeadingVoParams(
