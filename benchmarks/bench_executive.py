@@ -1,9 +1,11 @@
 """Executive speed: the tick at 50 Hz, and a whole dry-run against sim2d.
 
 Usage:  OPENBLAS_NUM_THREADS=1 python benchmarks/bench_executive.py [--seconds 300]
+            [--scenario clear-apron]
 
-(1) Tick: sensing + tree + controllers + safety layer, without the simulator, over the
-    first SECONDS of the A320 pre-flight on the clear apron (approach and inspection):
+(1) Tick: sensing + tree (obstacle avoidance included) + controllers + safety layer,
+    without the simulator, over the first SECONDS (approach and inspection) of the A320
+    pre-flight on SCENARIO (one of ``missions/a320/scenarios/``; default the clear apron):
     mean, p99, max. Measured twice: py_trees' logging at its default level (WARN), and at
     DEBUG with its output (py_trees prints it) captured in memory — py_trees formats its
     debug strings on every tick either way; the difference is what emitting them costs.
@@ -17,6 +19,7 @@ import argparse
 import contextlib
 import io
 import time
+from pathlib import Path
 
 import py_trees
 
@@ -25,8 +28,12 @@ from executive.dryrun import dry_run
 from sim2d.scenario import load_scenario
 
 
-def tick_figures(seconds: float, debug: bool) -> dict[str, float]:
-    scenario = load_scenario(missions_dir() / "a320" / "scenarios" / "clear-apron.xml")
+def scenario_path(name: str) -> Path:
+    return missions_dir() / "a320" / "scenarios" / f"{name}.xml"
+
+
+def tick_figures(seconds: float, debug: bool, name: str) -> dict[str, float]:
+    scenario = load_scenario(scenario_path(name))
     previous = py_trees.logging.level
     if debug:
         py_trees.logging.level = py_trees.logging.Level.DEBUG
@@ -41,12 +48,13 @@ def tick_figures(seconds: float, debug: bool) -> dict[str, float]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=300.0)
+    parser.add_argument("--scenario", default="clear-apron")
     args = parser.parse_args()
-    quiet = tick_figures(args.seconds, debug=False)
-    loud = tick_figures(args.seconds, debug=True)
+    quiet = tick_figures(args.seconds, debug=False, name=args.scenario)
+    loud = tick_figures(args.seconds, debug=True, name=args.scenario)
     print(f"tick, py_trees logging quiet: {quiet}")
     print(f"tick, py_trees logging DEBUG: {loud}")
-    scenario = load_scenario(missions_dir() / "a320" / "scenarios" / "clear-apron.xml")
+    scenario = load_scenario(scenario_path(args.scenario))
     t0 = time.perf_counter()
     run = dry_run(scenario)
     wall = time.perf_counter() - t0

@@ -312,10 +312,12 @@ def build_parser() -> argparse.ArgumentParser:
     dry.add_argument("--quiet", action="store_true", help="no live progress line")
     dry.add_argument(
         "--avoidance",
-        action="store_true",
+        action=argparse.BooleanOptionalAction,
+        default=True,
         help=(
             "obstacle avoidance in the tree: spiral, velocity obstacles, fallback planner "
-            "(issue #6; off by default until its campaign is run)"
+            "(default); --no-avoidance leaves the e-stop and the slowdown only: the robot "
+            "waits behind an obstacle"
         ),
     )
     dry.set_defaults(handler=cmd_dry_run)

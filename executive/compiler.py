@@ -131,10 +131,11 @@ class CompileOptions:
     """Initial pose estimate in A (default: the charging station)."""
     resume: MissionProgress | None = None
     """Progress journaled by an earlier run: completed checkpoints are not visited again."""
-    avoidance: bool = False
-    """Avoid obstacles on the way with the spiral controller (issue #6, in progress: off by
-    default until it is tuned in sim2d; the e-stop and the safety layer's slowdown handle
-    obstacles meanwhile)."""
+    avoidance: bool = True
+    """Avoid obstacles on the way (ARCHITECTURE §5, issue #6): the policy's spiral,
+    velocity obstacles and fallback planner under the e-stop guard. False: no avoidance
+    branches; the robot waits behind an obstacle (the e-stop and the safety layer's
+    slowdown handle it)."""
     avoidance_params: AvoidanceParams | None = None
     """Tuning of the avoidance policy (r_OA and the corridor come from the mission)."""
     avoider: AvoiderFactory | None = None

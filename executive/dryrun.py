@@ -454,7 +454,7 @@ def dry_run(
     progress_out: TextIO | None = None,
     max_time: float | None = None,
     robot: SimRobot | None = None,
-    avoidance: bool = False,
+    avoidance: bool = True,
     avoider: AvoiderFactory | None = None,
     avoidance_params: AvoidanceParams | None = None,
 ) -> DryRun:

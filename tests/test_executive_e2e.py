@@ -76,16 +76,20 @@ def test_preflight_with_the_aircraft_parked_off_its_mark(kind, tmp_path):
 LAB = {"mission_type": "lab", "mission": "visual-servoing.xml"}
 
 
+# Lab mission: the robot goes from P (2, -6) to CP1 (1.5, -3.5 in the lab frame). A person
+# starts walking slowly across its way (y = -4.6) when the robot nears P, steps in front of
+# it, and walks on to the far side of the room.
+WALKER = (
+    '<obstacles><path id="walker" kind="person" radius="0.3" height="1.8" speed="0.3"'
+    ' trigger-radius="3"><waypoint x="-0.5" y="-4.6"/><waypoint x="9" y="-4.6"/>'
+    "</path></obstacles>"
+)
+
+
 def test_pedestrian_in_front_triggers_the_estop_and_the_mission_goes_on(tmp_path):
-    # Lab mission: the robot goes from P (2, -6) to CP1 (1.5, -3.5 in the lab frame). A
-    # person starts walking slowly across its way (y = -4.6) when the robot nears P,
-    # steps in front of it, and walks on to the far side of the room.
-    walker = (
-        '<obstacles><path id="walker" kind="person" radius="0.3" height="1.8" speed="0.3"'
-        ' trigger-radius="3"><waypoint x="-0.5" y="-4.6"/><waypoint x="9" y="-4.6"/>'
-        "</path></obstacles>"
-    )
-    run = dry_run(make_scenario(tmp_path, walker, **LAB))
+    """Without obstacle avoidance the slowdown (the walker will enter the corridor) and the
+    e-stop handle the walker: the robot stops, waits, and goes on once it has passed."""
+    run = dry_run(make_scenario(tmp_path, WALKER, **LAB), avoidance=False)
     kinds = [e.detail.get("kind") for e in run.result.events if e.kind == "safety"]
     assert "estop-latched" in kinds and "estop-released" in kinds
     to_estop = [
@@ -94,6 +98,20 @@ def test_pedestrian_in_front_triggers_the_estop_and_the_mission_goes_on(tmp_path
         if e.kind == "controller" and e.detail["to"] == "emergency stop"
     ]
     assert to_estop and "r_ES" in to_estop[0].detail["reason"]
+    _assert_mission_succeeded(run)
+
+
+def test_pedestrian_in_front_is_dodged_with_obstacle_avoidance(tmp_path):
+    """With obstacle avoidance (the default) the same walker is dodged with velocity
+    obstacles: no e-stop at all, and the mission completes."""
+    run = dry_run(make_scenario(tmp_path, WALKER, **LAB))
+    dodges = [
+        e
+        for e in run.result.events
+        if e.kind == "controller" and e.detail["to"] == "velocity obstacles"
+    ]
+    assert dodges and "m/s" in dodges[0].detail["reason"]
+    assert metrics(run)["estops"] == 0
     _assert_mission_succeeded(run)
 
 
