@@ -109,8 +109,8 @@ def test_a_concave_trap_is_left_with_the_fallback_planner(tmp_path):
 @pytest.mark.parametrize("name", ["busy-apron", "adversarial-trolley"])
 def test_a320_preflight_with_avoidance(name, tmp_path):
     """Deselected by default (``-m long`` runs it): two whole A320 missions among
-    obstacles take ~7 min, which would take CI near 30 min; the clear-apron A320 and B737
-    missions (test_executive_e2e) run with avoidance, the default, in every CI run."""
+    obstacles take 3-4 min more than CI's 20; the clear-apron A320 and B737 missions
+    (test_executive_e2e) run with avoidance, the default, in every CI run."""
     scenario = load_scenario(MISSIONS / "a320" / "scenarios" / f"{name}.xml")
     run = dry_run(scenario, avoidance=True)
     report = metrics(run)
