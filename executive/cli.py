@@ -315,9 +315,9 @@ def build_parser() -> argparse.ArgumentParser:
         action=argparse.BooleanOptionalAction,
         default=True,
         help=(
-            "obstacle avoidance in the tree: spiral, velocity obstacles, fallback planner "
-            "(default); --no-avoidance leaves the e-stop and the slowdown only: the robot "
-            "waits behind an obstacle"
+            "obstacle avoidance in the tree: spiral, velocity obstacles, fallback planner; "
+            "--no-avoidance leaves the e-stop and the slowdown only: the robot waits "
+            "behind an obstacle"
         ),
     )
     dry.set_defaults(handler=cmd_dry_run)

@@ -284,19 +284,43 @@ class Runtime:
             self.events.append(Event(now, "registration", detail))
 
     def run(self, max_time: float = math.inf) -> RunResult:
-        """Tick until the mission succeeds, fails, or ``max_time`` (s) has passed."""
+        """Tick until the mission succeeds, fails, or ``max_time`` (s) has passed.
+
+        Whatever ends the run (an exception escaping the loop included), the robot is
+        sent a stop and what the run froze (:func:`_freeze_long_lived`) is let go; a run
+        started with objects already frozen by its caller freezes nothing.
+        """
         start = self.clock.now()
+        freeze = gc.get_freeze_count() == 0
+        try:
+            outcome, reason, trace = self._loop(start, max_time, freeze)
+        finally:
+            if freeze:
+                gc.unfreeze()  # the next run in this process may collect this one's objects
+            self.robot.send(VelocityCommand.stop())
+        progress = self._get(PROGRESS.name)
+        return RunResult(
+            outcome=outcome,
+            reason=reason,
+            progress=progress if isinstance(progress, MissionProgress) else MissionProgress(),
+            stats=self.stats,
+            events=self.events,
+            duration=self.clock.now() - start,
+            traceback=trace,
+        )
+
+    def _loop(self, start: float, max_time: float, freeze: bool) -> tuple[str, str, str | None]:
+        """The ticks of :meth:`run`: (outcome, reason, traceback of a crashed tick)."""
         outcome, reason, trace = "timeout", f"not finished after {max_time:.0f} s", None
-        frozen = False
         while True:
             now = self.clock.now()
             if now - start >= max_time:
                 break
             try:
                 status = self.step()
-                if not frozen:
+                if freeze:
                     _freeze_long_lived()
-                    frozen = True
+                    freeze = False
             except Exception as exc:  # a crashed behaviour: stop safely, say why
                 trace = traceback.format_exc()
                 self.safety.fault(now, f"exception in tick: {exc!r}")
@@ -312,16 +336,4 @@ class Runtime:
                 self.events.append(Event(now, "mission-failed", {"reason": reason}))
                 break
             self.clock.wait(now + self.period)
-        if frozen:
-            gc.unfreeze()  # the next run in this process may collect this one's objects
-        self.robot.send(VelocityCommand.stop())
-        progress = self._get(PROGRESS.name)
-        return RunResult(
-            outcome=outcome,
-            reason=reason,
-            progress=progress if isinstance(progress, MissionProgress) else MissionProgress(),
-            stats=self.stats,
-            events=self.events,
-            duration=self.clock.now() - start,
-            traceback=trace,
-        )
+        return outcome, reason, trace

@@ -141,7 +141,11 @@ LIMIT = "limit"
 LIMIT_END = "limit-end"
 
 MOVER_SPEED = 0.1
-"""A track faster than this (m/s) counts as moving for the slowdown's corridor test."""
+"""A track faster than this (m/s) counts as moving for the slowdown's corridor test
+(across its length for a line)..."""
+MOVER_MAX_SIZE = 1.5
+"""...unless it is bigger than this (enclosing radius, m): a vehicle or a structure,
+whose centroid slides as the robot's view of it changes."""
 
 _CIRCLE_SEGMENTS = 16  # per quarter circle; zone circles are circumscribed, never smaller
 _TOL = 1e-9
@@ -750,9 +754,20 @@ class SafetyLayer:
         motion term of speed-and-separation monitoring: a walker about to step in front
         of the robot slows it down before it gets there, not once it is there). A mover
         behind, chasing, never slows the robot down: that would let it catch up."""
-        if track.kind == "zone" or track.speed < MOVER_SPEED:
+        if track.kind == "zone" or track.size > MOVER_MAX_SIZE:
             return False
         (x, y), (vx, vy) = track.position, track.velocity
+        if track.kind == "line" and len(track.shape) == 4:
+            # only the motion across a line is observable: a partial view slides the
+            # centroid of a static wall (or fuselage side) along it
+            x0, y0, x1, y1 = track.shape
+            length = math.hypot(x1 - x0, y1 - y0)
+            if length > 1e-9:
+                nx, ny = -(y1 - y0) / length, (x1 - x0) / length
+                across = vx * nx + vy * ny
+                vx, vy = across * nx, across * ny
+        if math.hypot(vx, vy) < MOVER_SPEED:
+            return False
         if x * v <= 0.0:
             return False
         reach = half + track.size

@@ -21,9 +21,10 @@ from executive.cli import main
 from executive.core.frames import Pose2
 from executive.core.loader import load_mission
 from executive.core.records import FrameReference, Obstacles, PoseEstimate
-from executive.dryrun import dry_run
+from executive.dryrun import SimClock, dry_run
 from executive.journal import Journal, read_journal
 from executive.runtime import Runtime
+from sim2d.robot import SimRobot
 from tests.conftest import MISSIONS
 from tests.sim2d_helpers import make_scenario, scenario_file
 
@@ -146,6 +147,27 @@ def test_a_run_freezes_its_long_lived_objects_and_lets_them_go_at_the_end(tmp_pa
     dry_run(scenario, max_time=2.0)
     assert len(frozen) > 50 and frozen[0] == 0 and all(n > 1000 for n in frozen[1:])
     assert gc.get_freeze_count() == 0
+
+
+def test_an_error_outside_the_tick_still_stops_the_robot_and_unfreezes(tmp_path, monkeypatch):
+    """The simulator steps in the clock's wait, outside the tick's own error handling: an
+    exception there leaves the run, but the robot gets its stop and nothing stays frozen."""
+    wait = SimClock.wait
+
+    def broken(self, until):
+        if until > 1.0:
+            raise RuntimeError("simulator crashed")
+        wait(self, until)
+
+    monkeypatch.setattr(SimClock, "wait", broken)
+    scenario = make_scenario(tmp_path, mission_type="lab", mission="visual-servoing.xml")
+    sent = []
+    send = SimRobot.send
+    monkeypatch.setattr(SimRobot, "send", lambda self, cmd: (sent.append(cmd), send(self, cmd)))
+    with pytest.raises(RuntimeError, match="simulator crashed"):
+        dry_run(scenario)
+    assert gc.get_freeze_count() == 0
+    assert sent[-1].v == 0.0 and sent[-1].omega == 0.0
 
 
 def test_journal_tolerates_a_torn_last_line(tmp_path):

@@ -863,11 +863,12 @@ def _walker(x: float, y: float, vx: float, vy: float) -> TrackedObstacle:
         ((1.8, 2.2, 0.0, -0.2), 1.0, False),
         # a chaser behind the robot, coming up the corridor: never slows the robot down
         ((-1.8, 0.3, 0.8, 0.0), 1.0, False),
-        # ...but it does slow the robot backing up towards it
-        ((-1.8, 0.3, 0.8, 0.0), -0.5, True),
         # a walker crossing ahead that the robot, at this speed, passes before it gets
         # there: it enters the corridor behind the axle
         ((0.9, 2.0, 0.0, -0.6), 1.5, False),
+        # a walker behind the robot and beside its reversing corridor, walking into it:
+        # slows the robot backing up (no return in that corridor yet)
+        ((-1.8, 2.2, 0.0, -0.5), -0.5, True),
     ],
 )
 def test_slowdown_for_a_mover_about_to_enter_the_corridor(walker, v, slowed):
@@ -886,6 +887,38 @@ def test_slowdown_for_a_mover_about_to_enter_the_corridor(walker, v, slowed):
             frame=b.frame(0.0, False),
             pose=b.pose(),
             obstacles=Obstacles(b.t, mover.clearance, math.atan2(y, x), points, (mover,)),
+        )
+        b.t = round(b.t + PERIOD, 9)
+    assert (lay.status.speed_scale < 1.0) == slowed
+
+
+@pytest.mark.parametrize(
+    "velocity, slowed",
+    [
+        # a partial view slides the centroid of a static wall along it: not a mover
+        ((-0.5, 0.0), False),
+        # the same segment (a trolley's long side) moving across itself into the way
+        ((0.0, -0.5), True),
+    ],
+)
+def test_a_line_counts_as_a_mover_only_for_its_motion_across_itself(velocity, slowed):
+    """A 2 m segment beside the corridor, parallel to the robot's axis (x 1.5-3.5 m, y
+    2.6 m): its motion along itself is unobservable (the aperture problem), so only a
+    motion across it can bring it into the corridor within the horizon."""
+    clearance = math.hypot(1.5 - 0.7, 2.6 - 0.5)
+    wall = TrackedObstacle(
+        1, "line", (2.5, 2.6), velocity, np.eye(4), 1.0, clearance, 5.0, shape=(1.5, 2.6, 3.5, 2.6)
+    )
+    lay = layer()
+    b = Bench(lay)
+    points = np.array([[1.5, 2.6], [3.5, 2.6]])
+    for _ in range(60):
+        lay.filter(
+            cmd(1.0),
+            now=b.t,
+            frame=b.frame(0.0, False),
+            pose=b.pose(),
+            obstacles=Obstacles(b.t, clearance, math.atan2(2.6, 1.5), points, (wall,)),
         )
         b.t = round(b.t + PERIOD, 9)
     assert (lay.status.speed_scale < 1.0) == slowed

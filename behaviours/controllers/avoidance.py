@@ -269,8 +269,11 @@ class AvoidancePolicy:
             distance = float(np.hypot(*(target_xy - robot)))
             if distance < session.best_distance - p.progress:
                 session.best_distance, session.best_at = distance, now
-            # trapped among static obstacles (fleeing a mover is no lack of progress)
-            still = all(speed[i] <= p.fast_speed for i in candidates)
+            # trapped among static obstacles (fleeing a mover is no lack of progress; nor
+            # is dodging a slow one on a collision course)
+            still = all(speed[i] <= p.fast_speed for i in candidates) and (
+                self._mover_coming(candidates, robot, target_xy) is None
+            )
             if still and now - session.best_at > p.trapped_after:
                 return self._switch(
                     REPLAN,
