@@ -106,7 +106,7 @@ from shapely.geometry.base import BaseGeometry
 
 from behaviours.laws import estop
 from behaviours.laws.estop import EStopLatch
-from behaviours.laws.obstacles import footprint_distances
+from behaviours.laws.obstacles import footprint_distances, observable_velocity
 from executive.core.frames import AircraftPlacement, FloatArray
 from executive.core.model import Circle, ForbiddenZone, Frame, Mission
 from executive.core.records import (
@@ -756,16 +756,9 @@ class SafetyLayer:
         behind, chasing, never slows the robot down: that would let it catch up."""
         if track.kind == "zone" or track.size > MOVER_MAX_SIZE:
             return False
-        (x, y), (vx, vy) = track.position, track.velocity
-        if track.kind == "line" and len(track.shape) == 4:
-            # only the motion across a line is observable: a partial view slides the
-            # centroid of a static wall (or fuselage side) along it
-            x0, y0, x1, y1 = track.shape
-            length = math.hypot(x1 - x0, y1 - y0)
-            if length > 1e-9:
-                nx, ny = -(y1 - y0) / length, (x1 - x0) / length
-                across = vx * nx + vy * ny
-                vx, vy = across * nx, across * ny
+        x, y = track.position
+        shape = track.shape if track.kind == "line" else ()
+        vx, vy = observable_velocity(track.velocity, shape)
         if math.hypot(vx, vy) < MOVER_SPEED:
             return False
         if x * v <= 0.0:

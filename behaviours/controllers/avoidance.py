@@ -271,10 +271,11 @@ class AvoidancePolicy:
                 session.best_distance, session.best_at = distance, now
             # trapped among static obstacles (fleeing a mover is no lack of progress; nor
             # is dodging a slow one on a collision course)
-            still = all(speed[i] <= p.fast_speed for i in candidates) and (
-                self._mover_coming(candidates, robot, target_xy) is None
-            )
-            if still and now - session.best_at > p.trapped_after:
+            if (
+                now - session.best_at > p.trapped_after
+                and all(speed[i] <= p.fast_speed for i in candidates)
+                and self._mover_coming(candidates, robot, target_xy) is None
+            ):
                 return self._switch(
                     REPLAN,
                     track,
@@ -700,9 +701,8 @@ class DodgeObstacle(AvoidanceController):
             for t in obstacles.tracks
             if t.clearance < self.reach and t.kind != "zone"
         ]
-        if len(self._fastest) > 4 * len(near) + 16:  # forget tracks long gone
-            horizon = obstacles.stamp - self.velocity_memory
-            self._fastest = {k: r for k, r in self._fastest.items() if r[0] >= horizon}
+        horizon = obstacles.stamp - self.velocity_memory  # forget what has expired
+        self._fastest = {k: r for k, r in self._fastest.items() if r[0] >= horizon}
         fastest = max((o.speed for o in near), default=0.0)
         v_max = min(self.platform.max_speed, max(self.nu_min, self.escape_factor * fastest))
         params = HeadingVoParams(

@@ -42,3 +42,21 @@ def closest_obstacle(points: FloatArray, length: float, width: float) -> tuple[f
     d = footprint_distances(points, length, width)
     k = int(np.argmin(d))
     return float(d[k]), math.atan2(points[k, 1], points[k, 0])
+
+
+def observable_velocity(
+    velocity: tuple[float, float], shape: tuple[float, ...]
+) -> tuple[float, float]:
+    """The part of a track's velocity the lasers can vouch for: for a line (``shape`` =
+    its end points ``(x0, y0, x1, y1)``, in the velocity's frame) only the motion across
+    it — the motion along a line is unobservable (the aperture problem) and a partial
+    view slides the centroid of a static wall along it; the whole velocity otherwise."""
+    if len(shape) != 4:
+        return velocity
+    x0, y0, x1, y1 = shape
+    length = math.hypot(x1 - x0, y1 - y0)
+    if length < 1e-9:
+        return velocity
+    nx, ny = -(y1 - y0) / length, (x1 - x0) / length
+    across = velocity[0] * nx + velocity[1] * ny
+    return across * nx, across * ny

@@ -61,6 +61,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from behaviours.laws.obstacles import observable_velocity
 from executive.core.frames import FloatArray, Pose2, wrap_angle
 
 __all__ = [
@@ -159,17 +160,9 @@ class SpiralObstacle:
 
     @property
     def observable_speed(self) -> float:
-        """The speed the lasers can vouch for: across a line obstacle only (its motion
-        along its own direction is unobservable — the aperture problem — and a partial
-        view slides the tracked centroid along a static wall), the full speed otherwise."""
-        if not self.is_line:
-            return self.speed
-        x0, y0, x1, y1 = self.shape
-        length = math.hypot(x1 - x0, y1 - y0)
-        if length < 1e-9:
-            return self.speed
-        nx, ny = -(y1 - y0) / length, (x1 - x0) / length
-        return abs(self.velocity[0] * nx + self.velocity[1] * ny)
+        """The speed the lasers can vouch for (:func:`obstacles.observable_velocity`:
+        across a line obstacle only, the full speed otherwise)."""
+        return math.hypot(*observable_velocity(self.velocity, self.shape))
 
     @property
     def centre(self) -> FloatArray:
