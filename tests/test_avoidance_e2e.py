@@ -105,12 +105,9 @@ def test_a_concave_trap_is_left_with_the_fallback_planner(tmp_path):
     assert any("end of the planned path" in e.detail["reason"] for e in ended)
 
 
-@pytest.mark.long
 @pytest.mark.parametrize("name", ["busy-apron", "adversarial-trolley"])
 def test_a320_preflight_with_avoidance(name, tmp_path):
-    """Deselected by default (``-m long`` runs it): two whole A320 missions among
-    obstacles take 3-4 min more than CI's 20; the clear-apron A320 and B737 missions
-    (test_executive_e2e) run with avoidance, the default, in every CI run."""
+    """The whole A320 pre-flight among obstacles (about 2 min each), with avoidance."""
     scenario = load_scenario(MISSIONS / "a320" / "scenarios" / f"{name}.xml")
     run = dry_run(scenario, avoidance=True)
     report = metrics(run)
