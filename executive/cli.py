@@ -7,7 +7,6 @@ failed, 2 bad input (invalid files, bad arguments).
 from __future__ import annotations
 
 import argparse
-import itertools
 import json
 import sys
 from collections.abc import Sequence
@@ -15,7 +14,13 @@ from pathlib import Path
 
 from executive import __version__
 from executive.core.loader import check_file, load_aircraft, load_mission, root_name
-from executive.core.problems import InvalidInputError, Problem, SourceLocation
+from executive.core.problems import (
+    InvalidInputError,
+    Problem,
+    SourceLocation,
+    internal_error,
+    source_line,
+)
 from executive.core.resources import missions_dir, shipped_mission_files
 from sim2d.scenario import check_scenario, load_scenario
 
@@ -25,30 +30,22 @@ EXIT_BAD_INPUT = 2
 
 
 def _source_line(problem: Problem) -> str | None:
-    """The offending line with a caret under the column, when it is printable text."""
-    if problem.where.line <= 0:
-        return None
-    try:
-        with open(problem.where.file, "rb") as handle:
-            raw = next(itertools.islice(handle, problem.where.line - 1, None), None)
-        if raw is None:
-            return None
-        text = raw.decode("utf-8").rstrip("\r\n").expandtabs(1)
-    except (OSError, UnicodeDecodeError):
-        return None
-    if not text.isprintable() or len(text) > 200:
-        return None
-    caret = ""
-    if 0 < problem.where.column <= len(text) + 1:
-        caret = "\n      " + " " * (problem.where.column - 1) + "^"
-    return f"    | {text}{caret.replace(chr(10) + '      ', chr(10) + '    | ', 1)}"
+    """The offending line with a caret under the column (bounded read; see source_line)."""
+    return source_line(problem)
 
 
 def check_any(path: Path, library: Path | None = None) -> list[Problem]:
-    """Every problem of an aircraft, mission or scenario file; never raises."""
-    if root_name(path) == "scenario":
-        return check_scenario(path, library)
-    return check_file(path, library)
+    """Every problem of an aircraft, mission or scenario file; never raises.
+
+    An unexpected exception of a checker becomes an ``internal-error`` problem of this
+    file, so a batch goes on with the next file.
+    """
+    try:
+        if root_name(path) == "scenario":
+            return check_scenario(path, library)
+        return check_file(path, library)
+    except Exception as exc:  # reported as a problem of this file
+        return [internal_error(path, exc)]
 
 
 def _describe(path: Path) -> str:
@@ -84,7 +81,14 @@ def cmd_validate(args: argparse.Namespace) -> int:
     results = []
     for path in files:
         problems = check_any(path, args.library)
-        summary = _describe(path) if not problems else None
+        summary = None
+        if not problems:
+            try:
+                summary = _describe(path)
+            except InvalidInputError as exc:  # changed between the check and the summary
+                problems = list(exc.problems)
+            except Exception as exc:  # one file never hides the others
+                problems = [internal_error(path, exc)]
         results.append((path, problems, summary))
 
     all_valid = all(not problems for _, problems, _ in results)

@@ -39,6 +39,7 @@ from executive.core.model import (
     ZoneKind,
 )
 from executive.core.problems import InvalidInputError, Problem
+from sim2d.scenario import check_scenario, load_scenario
 
 LIBRARY = Path(__file__).parent / "corpus" / "library"
 BASE = LIBRARY / "base"
@@ -383,6 +384,33 @@ CASES: list[Case] = [
         "aircraft file '../base/mission.xml' has 1 problem(s)",
         count=2,
     ),
+    # -- foreign namespaces: reported where they are, never an XPath crash (issue 12) ------------
+    Case("mission-foreign-element.xml", 19, 3, "foreign-namespace", "<x:hint> is an element in"),
+    Case("mission-foreign-attribute.xml", 19, 43, "foreign-namespace", "attribute 'x:margin'"),
+    Case("mission-foreign-root-attribute.xml", 4, 42, "foreign-namespace", "'x:owner' is in"),
+    Case("mission-xinclude.xml", 23, 5, "foreign-namespace", "<xi:include> is an XInclude"),
+    Case("mission-xml-lang.xml", 54, 17, "foreign-namespace", "'xml:lang' is in namespace"),
+    Case("aircraft-foreign-element.xml", 18, 3, "foreign-namespace", "<x:extra> is an element"),
+    Case("aircraft-foreign-attribute.xml", 16, 45, "foreign-namespace", "'x:colour' is in"),
+    Case("scenario-foreign-element.xml", 25, 3, "foreign-namespace", "<x:more>", count=2),
+    Case("scenario-foreign-attribute.xml", 15, 45, "foreign-namespace", "'x:mass' is in"),
+    Case("scenario-xinclude.xml", 12, 3, "foreign-namespace", "<xi:include> is an XInclude"),
+    # -- references to other files ---------------------------------------------------------------
+    Case(
+        "mission-aircraft-path-10000-chars.xml",
+        2,
+        65,
+        "schema",
+        "is 10002 characters long; it must be at most 1024",
+    ),
+    Case(
+        "scenario-mission-path-10000-chars.xml",
+        2,
+        63,
+        "schema",
+        "is 9998 characters long; it must be at most 1024",
+    ),
+    Case("scenario-mission-missing.xml", 2, 63, "mission-path", "does not exist"),
 ]
 
 
@@ -398,8 +426,17 @@ def _listing(problems: list[Problem] | tuple[Problem, ...]) -> str:
     return "\n".join(str(p) for p in problems) or "(no problems)"
 
 
+def _check(path: Path) -> list[Problem]:
+    """Every problem of a corpus file, with the checker its name calls for."""
+    if path.name.startswith("scenario"):
+        return check_scenario(path)
+    return check_file(path)
+
+
 def _loader_for(path: Path):
     """The loader for a corpus file, from its name (files of neither kind: both)."""
+    if path.name.startswith("scenario"):
+        return [load_scenario]
     if path.name.startswith("aircraft"):
         return [load_aircraft]
     if path.name.startswith("mission"):
@@ -411,6 +448,12 @@ def _loader_for(path: Path):
 @pytest.mark.parametrize("name", ["aircraft.xml", "mission.xml"])
 def test_base_files_are_valid(name):
     assert check_file(BASE / name) == []
+
+
+def test_base_scenario_is_valid():
+    assert check_scenario(BASE / "scenario.xml") == []
+    scenario = load_scenario(BASE / "scenario.xml")
+    assert (len(scenario.obstacles), len(scenario.faults), scenario.seed) == (5, 5, 7)
 
 
 def test_base_aircraft_model():
@@ -514,7 +557,7 @@ def test_every_broken_file_has_an_expectation():
 @pytest.mark.parametrize("case", _params())
 def test_problem_reported_at_its_place(case: Case):
     path = BROKEN / case.file
-    problems = check_file(path)  # must not raise
+    problems = _check(path)  # must not raise
     here = [p for p in problems if p.code == case.code and _same_file(p, path)]
     assert here, f"no '{case.code}' problem in {case.file}:\n{_listing(problems)}"
     at_line = [p for p in here if p.where.line == case.line]
@@ -529,7 +572,7 @@ def test_problem_reported_at_its_place(case: Case):
 
 @pytest.mark.parametrize("case", _params())
 def test_problem_count(case: Case):
-    problems = check_file(BROKEN / case.file)
+    problems = _check(BROKEN / case.file)
     assert len(problems) == case.count, _listing(problems)
 
 
@@ -540,7 +583,7 @@ def test_loaders_raise_and_build_nothing(case: Case):
         with pytest.raises(InvalidInputError) as info:
             loader(path)
         assert info.value.problems
-        if loader is load_mission or case.file.startswith("aircraft"):
+        if loader in (load_mission, load_scenario) or case.file.startswith("aircraft"):
             assert case.code in {p.code for p in info.value.problems}, _listing(info.value.problems)
 
 

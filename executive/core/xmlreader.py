@@ -8,6 +8,7 @@ problems at the element or attribute they concern.
 from __future__ import annotations
 
 import math
+import stat
 from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import TypeVar
@@ -17,10 +18,20 @@ from lxml import etree
 from executive.core.frames import Pose2
 from executive.core.geometry import polygon_problem
 from executive.core.model import Circle, Polygon, Shape
-from executive.core.problems import InvalidInputError, Problem, ProblemSink, SourceLocation
+from executive.core.problems import (
+    InvalidInputError,
+    Problem,
+    ProblemSink,
+    SourceLocation,
+    file_kind,
+)
 from executive.core.xmlsafe import XmlDocument, parse_xml, validate_against
 
 E = TypeVar("E")
+
+MAX_REFERENCE_CHARS = 1024
+"""Longest file reference (a mission's aircraft, a scenario's mission): real ones are a
+few tens of characters; a longer one is refused before the file system sees it."""
 
 
 def display_path(path: Path) -> str:
@@ -203,19 +214,32 @@ def load_reference(
         r.problem(root, f"{attribute}-{code}", message, attribute)
         return None, []
 
+    if len(ref) > MAX_REFERENCE_CHARS:
+        return complain(
+            "path",
+            f"{attribute} path is {len(ref)} characters long; the limit is "
+            f"{MAX_REFERENCE_CHARS} (a relative path inside the mission library)",
+        )
     if rel.is_absolute() or ref.startswith(("/", "\\")) or ":" in ref.split("/")[0]:
         return complain("path", f"{attribute} path '{ref}' must be relative to the {referrer} file")
-    library = library_root.resolve()
-    target = (source.resolve().parent / rel).resolve()
+    try:
+        library = library_root.resolve()
+        target = (source.resolve().parent / rel).resolve()
+    except (OSError, RuntimeError) as exc:  # a symlink loop, a component too long
+        return complain("path", f"{attribute} path '{ref}' cannot be resolved: {exc}")
     if not target.is_relative_to(library):
         return complain(
             "path",
             f"{attribute} path '{ref}' leads outside the mission library root "
             f"'{display_path(library)}'",
         )
-    if not target.is_file():
-        what = "is a directory, not a file" if target.is_dir() else "does not exist"
-        return complain("path", f"{attribute} file '{ref}' {what}")
+    try:
+        mode = target.stat().st_mode
+    except OSError:
+        return complain("path", f"{attribute} file '{ref}' does not exist")
+    if not stat.S_ISREG(mode):
+        what = file_kind(mode)
+        return complain("path", f"{attribute} file '{ref}' is {what}, not a regular file")
     try:
         return load(target), []
     except InvalidInputError as exc:

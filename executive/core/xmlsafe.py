@@ -21,10 +21,14 @@ from pathlib import Path
 
 from lxml import etree
 
-from executive.core.problems import ProblemSink
+from executive.core.problems import (
+    MAX_FILE_BYTES,
+    NotRegularFileError,
+    ProblemSink,
+    open_regular,
+)
 
-MAX_FILE_BYTES = 4 * 1024 * 1024
-"""Largest accepted input file; real missions are a few tens of kilobytes."""
+__all__ = ["MAX_DEPTH", "MAX_FILE_BYTES", "XmlDocument", "parse_bytes", "parse_xml"]
 
 MAX_DEPTH = 32
 """Deepest accepted element nesting; the formats need fewer than 8 levels."""
@@ -118,26 +122,31 @@ class XmlDocument:
 
 
 def _read_limited(path: Path, sink: ProblemSink) -> bytes | None:
+    """The file's bytes, if it is a regular file of at most :data:`MAX_FILE_BYTES` bytes.
+
+    Never blocks (a FIFO is refused, not opened for reading) and never reads more than
+    the limit plus one byte, whatever ``stat`` claims (``/proc`` files report size 0).
+    """
     try:
-        size = path.stat().st_size
-        if size > MAX_FILE_BYTES:
-            sink.add(
-                "too-large",
-                f"file is {size} bytes; the limit is {MAX_FILE_BYTES} bytes",
-                1,
-                1,
-            )
-            return None
-        with path.open("rb") as handle:
+        with open_regular(path) as handle:
             data = handle.read(MAX_FILE_BYTES + 1)
     except FileNotFoundError:
         sink.add("not-found", "file not found")
         return None
-    except IsADirectoryError:
-        sink.add("not-a-file", "is a directory, not an XML file")
+    except NotRegularFileError as exc:
+        sink.add("not-a-file", f"is {exc.strerror}, not a regular XML file")
         return None
     except OSError as exc:
         sink.add("unreadable", f"cannot read the file: {exc.strerror or exc}")
+        return None
+    if len(data) > MAX_FILE_BYTES:
+        sink.add(
+            "too-large",
+            f"file is larger than the limit of {MAX_FILE_BYTES} bytes "
+            "(walkaround files are a few tens of kilobytes)",
+            1,
+            1,
+        )
         return None
     return data
 
@@ -259,7 +268,75 @@ def parse_bytes(data: bytes, path: Path, sink: ProblemSink) -> XmlDocument | Non
     for node in root.iter(etree.Entity):  # undeclared references cannot survive parsing,
         line, col = doc.locate(node.getparent())  # but keep the guarantee explicit
         sink.add("entity", "entity references are not allowed", line, col)
+    _foreign_namespaces(doc, sink)
     return None if sink else doc
+
+
+MAX_FOREIGN_REPORTED = 20
+"""Foreign-namespace problems reported per file (a file full of them says so once)."""
+
+
+def _foreign_namespaces(doc: XmlDocument, sink: ProblemSink) -> None:
+    """Report every element outside the root's namespace and every namespaced attribute.
+
+    walkaround formats have no extension points: a prefixed ``<x:foo>``, an XInclude
+    ``<xi:include>`` (never processed) or an ``x:bar="..."`` attribute is a mistake, found
+    here with its location before the XSD (whose error paths name prefixes that XPath
+    cannot resolve) sees it.
+    """
+    namespace = etree.QName(doc.root).namespace
+    found = 0
+    for element in doc.iter_elements():
+        qname = etree.QName(element)
+        bad: list[tuple[str | None, str]] = []
+        if element is not doc.root and qname.namespace not in (namespace, None):
+            where = f"namespace '{qname.namespace}'" if qname.namespace else "no namespace"
+            what = "an XInclude" if qname.namespace in _XINCLUDE else "an element"
+            bad.append(
+                (
+                    None,
+                    f"<{_prefixed(element, element.tag)}> is {what} in {where}; walkaround "
+                    f"files allow only elements of '{namespace or 'no namespace'}' "
+                    "(XInclude and extensions are not processed)",
+                )
+            )
+        for name in element.attrib:
+            if etree.QName(name).namespace is not None:
+                shown = _prefixed(element, name)
+                bad.append(
+                    (
+                        shown,
+                        f"<{qname.localname}> attribute '{shown}' is in namespace "
+                        f"'{etree.QName(name).namespace}'; walkaround attributes have no "
+                        "namespace",
+                    )
+                )
+        for attribute, message in bad:
+            found += 1
+            if found <= MAX_FOREIGN_REPORTED:
+                sink.add("foreign-namespace", message, *doc.locate(element, attribute))
+    if found > MAX_FOREIGN_REPORTED:
+        sink.add(
+            "foreign-namespace",
+            f"{found - MAX_FOREIGN_REPORTED} more elements or attributes in foreign namespaces",
+            *doc.locate(doc.root),
+        )
+
+
+_XINCLUDE = {"http://www.w3.org/2001/XInclude", "http://www.w3.org/2003/XInclude"}
+
+
+def _prefixed(element: etree._Element, tag: str) -> str:
+    """``prefix:local`` as written in the source for a ``{uri}local`` name."""
+    qname = etree.QName(tag)
+    if qname.namespace is None:
+        return qname.localname
+    if qname.namespace == "http://www.w3.org/XML/1998/namespace":
+        return f"xml:{qname.localname}"
+    for prefix, uri in (element.nsmap or {}).items():
+        if uri == qname.namespace and prefix:
+            return f"{prefix}:{qname.localname}"
+    return qname.localname
 
 
 def _first_too_deep(root: etree._Element) -> etree._Element | None:
@@ -319,6 +396,9 @@ def _plain_facet(text: str) -> str:
     }.get(facet)
     if wording:
         return f"{wording}, not {value}"
+    if facet in ("maxLength", "minLength"):
+        what = "at most" if facet == "maxLength" else "at least"
+        return f"is {len(value)} characters long; it must be {what} {limit}"
     if facet == "pattern":
         if "A-Za-z0-9_" in rest:
             return f"'{value}' is not {_TYPE_WORDS['identifier']}"
@@ -367,6 +447,15 @@ def _plain_schema_message(message: str) -> tuple[str, str | None]:
     return text.rstrip("."), None
 
 
+_LONG_QUOTED = re.compile(r"'([^']{61,})'")
+
+
+def _shorten(match: re.Match[str]) -> str:
+    """A quoted value cut to a readable length: messages never echo a huge value whole."""
+    value = match.group(1)
+    return f"'{value[:40]}...' ({len(value)} characters)"
+
+
 def validate_against(doc: XmlDocument, xsd_path: Path, sink: ProblemSink) -> bool:
     """Validate ``doc`` against an XSD; record every violation with its location."""
     schema = load_schema(xsd_path)
@@ -376,8 +465,12 @@ def validate_against(doc: XmlDocument, xsd_path: Path, sink: ProblemSink) -> boo
     seen: set[tuple[int, int]] = set()
     for entry in schema.error_log:
         message, attribute = _plain_schema_message(entry.message)
+        message = _LONG_QUOTED.sub(_shorten, message)
         line, column = entry.line, entry.column
-        nodes = tree.xpath(entry.path) if entry.path else []
+        try:
+            nodes = tree.xpath(entry.path) if entry.path else []
+        except (etree.XPathError, ValueError):  # a path that does not evaluate: use the line
+            nodes = []
         if nodes and isinstance(nodes[0], etree._Element):
             line, column = doc.locate(nodes[0], attribute)
         if (line, column) in seen:  # libxml2 follows a failed facet with its consequences
