@@ -48,7 +48,13 @@ class MissionProgress:
 
 @dataclass(frozen=True, slots=True)
 class ItemResult:
-    """One inspected item: when, from where, with which camera pose, detected or not."""
+    """One inspected item: when, from where, with which camera pose, detected or not.
+
+    ``stale`` is True when the item could not be judged on fresh data: no image of the
+    inspection camera newer than the moment it was aimed at the item was fresh (a frozen
+    camera repeating an old image), or the pan-tilt angles were stale. Such an item is
+    never ``detected``.
+    """
 
     checkpoint: str
     item: str
@@ -58,6 +64,7 @@ class ItemResult:
     pan: float
     tilt: float
     pose_f: tuple[float, float, float]
+    stale: bool = False
 
 
 SENSOR_FRAME = Key("/sensors/frame", SensorFrame)

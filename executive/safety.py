@@ -21,11 +21,24 @@ the e-stop, faults and the geofence always win over the tree):
    the bumper is released; if an obstacle is still inside r_es at that moment the latch
    becomes an obstacle latch. While latched every command is exactly zero.
 3. **Faults and stale data**: a :meth:`fault` (an exception in a tick, a lost bus, a
-   non-finite command) stops the robot until an operator reset. Stale data stops it only
-   while it lasts: a configured laser with no scan or a scan older than ``stale_after``
-   (default: three periods of the slowest laser; every scan in the frame is checked too),
-   an obstacle estimate that is missing or older than ``stale_after``, a missing or
-   non-finite pose estimate.
+   non-finite command) stops the robot until an operator reset. Every sensor is watched
+   (:mod:`behaviours.laws.freshness`: a sensor is stale when its last *new* reading is
+   older than its limit; a camera that repeats its image content with fresh stamps
+   delivers nothing new). What happens depends on what the sensor is for:
+
+   * safe motion depends on it — each laser (no scan, or a scan older than
+     ``stale_after``, default three periods of the slowest laser; every scan in the frame
+     is checked too), the wheel encoders, the IMU, the obstacle estimate (missing or
+     older than ``stale_after``) and the pose estimate (missing or non-finite): the robot
+     is stopped while it lasts (``stale-sensor``, then ``sensor-fresh``), the reason
+     naming each stale sensor and the time of its last fresh reading;
+   * only the mission's quality depends on it — each camera, each pan-tilt unit's angles,
+     the GPS: ``sensor-degraded`` / ``sensor-recovered``, one event per sensor, the robot
+     keeps going (obstacles are seen by the lasers, the pose is carried by odometry). A
+     unit whose angles are stale is not driven blind: its pan/tilt rates are zeroed.
+
+   Every stale stretch of every sensor is kept in :attr:`SafetyLayer.sensor_health`
+   (:meth:`SafetyLayer.stale_intervals`) for the report.
 4. **Slowdown zone** (like Nav2's collision monitor, with the direction of travel of
    speed-and-separation monitoring): the requested speed is scaled by
    ``s = clamp((r_d - r_es) / (r_oa - r_es), floor, 1)`` where r_d is the distance from
@@ -85,7 +98,8 @@ limits. After a stop the limits apply again from rest.
 
 **Events** (:attr:`SafetyLayer.events`, append-only, drained by the runtime): one per change
 of state, not one per tick: ``estop-latched`` / ``estop-released`` / ``estop-reset`` /
-``reset-refused``, ``fault-stop``, ``stale-sensor`` / ``sensor-fresh``, ``slowdown`` /
+``reset-refused``, ``fault-stop``, ``stale-sensor`` / ``sensor-fresh``,
+``sensor-degraded`` / ``sensor-recovered``, ``slowdown`` /
 ``slowdown-end``, ``geofence-slow`` / ``geofence-stop`` / ``geofence-clear``, ``limit`` /
 ``limit-end`` (only the magnitude limits: the tree asked for more than the platform can
 do; acceleration and jerk smoothing is normal and not logged). A state that eases off
@@ -95,9 +109,11 @@ seconds, so riding a boundary does not flood the log.
 
 from __future__ import annotations
 
+import dataclasses
 import math
-from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass
+from collections.abc import Callable, Hashable, Iterable, Mapping
+from dataclasses import dataclass, field
+from types import MappingProxyType
 
 import numpy as np
 import shapely
@@ -106,9 +122,10 @@ from shapely.geometry.base import BaseGeometry
 
 from behaviours.laws import estop
 from behaviours.laws.estop import EStopLatch
+from behaviours.laws.freshness import Freshness
 from behaviours.laws.obstacles import footprint_distances, observable_velocity
 from executive.core.frames import AircraftPlacement, FloatArray
-from executive.core.model import Circle, ForbiddenZone, Frame, Mission
+from executive.core.model import CameraKind, Circle, ForbiddenZone, Frame, Mission, Platform
 from executive.core.records import (
     Obstacles,
     PanTiltRate,
@@ -132,6 +149,8 @@ _LATCH_EVENTS = {
 FAULT_STOP = "fault-stop"
 STALE_SENSOR = "stale-sensor"
 SENSOR_FRESH = "sensor-fresh"
+SENSOR_DEGRADED = "sensor-degraded"
+SENSOR_RECOVERED = "sensor-recovered"
 SLOWDOWN = "slowdown"
 SLOWDOWN_END = "slowdown-end"
 GEOFENCE_SLOW = "geofence-slow"
@@ -182,6 +201,63 @@ class SafetyStatus:
     geofence_distance: float = math.inf
     geofence_zone: str | None = None
     forced_stop: bool = False
+
+
+DEFAULT_STALE_LIMITS: Mapping[str, float] = MappingProxyType(
+    {"wheels": 0.2, "imu": 0.2, "gps": 3.0}
+)
+"""Stale limits (s) of the sensors whose rate the platform does not give: 10 periods of
+50 Hz encoders and an IMU (20 cm of blind odometry at 1 m/s), 3 periods of a 1 Hz GPS.
+Lasers use ``stale_after``; cameras and pan-tilt units three periods of their camera."""
+
+
+@dataclass(frozen=True, slots=True)
+class StaleInterval:
+    """One stretch of time a sensor was stale.
+
+    ``since`` is the stamp of its last fresh reading before the stretch (None: it had
+    never delivered one): data newer than that was missing from then on; ``detected``
+    when the layer declared it stale (``since`` + its limit, to one tick); ``until`` when
+    fresh data came back (None: still stale at the end of the run). ``reason`` is the
+    event's reason.
+    """
+
+    since: float | None
+    detected: float
+    until: float | None = None
+    reason: str = ""
+
+    def duration(self, end: float, start: float = 0.0) -> float:
+        """Seconds without fresh data: from ``since`` (``start`` when None) to ``until``
+        (``end`` while still stale)."""
+        first = self.since if self.since is not None else start
+        last = self.until if self.until is not None else end
+        return max(0.0, last - first)
+
+
+@dataclass(slots=True)
+class SensorHealth:
+    """What the layer knows of one sensor.
+
+    ``sensor`` is its key (``laser:<id>``, ``camera:<camera>``, ``ptu:<unit>``,
+    ``wheels``, ``imu``, ``gps``, ``pose``, ``obstacles``), ``label`` how messages name
+    it, ``stops`` whether it being stale stops the robot, ``limit`` its stale limit (s),
+    ``intervals`` its stale stretches in order (the last one open while stale).
+    """
+
+    sensor: str
+    label: str
+    stops: bool
+    limit: float
+    intervals: list[StaleInterval] = field(default_factory=list)
+
+    @property
+    def stale(self) -> bool:
+        return bool(self.intervals) and self.intervals[-1].until is None
+
+    def stale_seconds(self, end: float, start: float = 0.0) -> float:
+        """Total time without fresh data up to ``end`` (see :meth:`StaleInterval.duration`)."""
+        return sum(i.duration(end, start) for i in self.intervals)
 
 
 # -- motion limits --------------------------------------------------------------------------------
@@ -433,6 +509,36 @@ class _Monitor:
 
 _NONE, _SLOW, _STOP, _EMERGENCY = 0, 1, 2, 3
 
+_LABELS = {
+    "laser": "laser",
+    "camera": "camera",
+    "ptu": "pan-tilt unit",
+    "wheels": "wheel encoders",
+    "imu": "IMU",
+    "gps": "GPS",
+    "pose": "pose estimate",
+    "obstacles": "obstacle estimate",
+}
+_MISSING = {
+    "laser": "has no scan",
+    "camera": "no image",
+    "ptu": "no angles",
+    "wheels": "no reading",
+    "imu": "no reading",
+    "gps": "no fix",
+}
+_STOPPING = frozenset({"laser", "wheels", "imu", "pose", "obstacles"})
+"""The sensors safe motion depends on: stale -> stop. The others (cameras, pan-tilt
+angles, GPS) only degrade the mission's results."""
+
+
+def camera_ids(platform: Platform, unit: str) -> tuple[str, ...]:
+    """The cameras of platform camera unit ``unit`` as the sensor frame names them: a
+    stereo unit ``<id>-left`` and ``<id>-right``, any other ``<id>``."""
+    if platform.cameras[unit].kind is CameraKind.STEREO:
+        return (f"{unit}-left", f"{unit}-right")
+    return (unit,)
+
 
 # -- the layer ------------------------------------------------------------------------------------
 class SafetyLayer:
@@ -452,6 +558,7 @@ class SafetyLayer:
         mover_horizon: float = 3.0,
         horizon: float | None = None,
         event_hold: float = 0.5,
+        stale_limits: Mapping[str, float] | None = None,
     ) -> None:
         platform = mission.platform
         self.mission = mission
@@ -509,6 +616,25 @@ class SafetyLayer:
         self._fault: str | None = None
         self._fault_stamp = -math.inf
         self._stale: dict[str, str] = {}
+        self._limits = dict(DEFAULT_STALE_LIMITS)
+        for cid, spec in platform.cameras.items():
+            per_camera = 3.0 / spec.rate_hz if spec.rate_hz > 0 else 3.0 * self.period
+            for camera in camera_ids(platform, cid):
+                self._limits[f"camera:{camera}"] = per_camera
+            self._limits[f"ptu:{cid}"] = per_camera
+        self._limits.update(stale_limits or {})
+        self.sensor_health: dict[str, SensorHealth] = {}
+        """Every watched sensor by key, with its stale intervals (see :class:`SensorHealth`)."""
+        self._fresh: dict[str, Freshness] = {}
+        self._stale_ptus: set[str] = set()
+        for lid in self.lasers:
+            self._watch(f"laser:{lid}")
+        for cid in platform.cameras:
+            for camera in camera_ids(platform, cid):
+                self._watch(f"camera:{camera}")
+            self._watch(f"ptu:{cid}")
+        for key in ("wheels", "imu", "gps", "pose", "obstacles"):
+            self._watch(key)
         # reported states
         self._geo_monitor = _Monitor(event_hold)
         self._slow_monitor = _Monitor(event_hold)
@@ -555,6 +681,11 @@ class SafetyLayer:
             self._emit(now, FAULT_STOP, reason)
         self._fault_stamp = now
         self._fault = reason
+
+    def stale_intervals(self) -> dict[str, tuple[StaleInterval, ...]]:
+        """Each watched sensor's stale stretches so far, by sensor key (empty: never
+        stale). The last stretch of a sensor still stale has ``until`` None."""
+        return {key: tuple(h.intervals) for key, h in self.sensor_health.items()}
 
     def drain_events(self) -> list[SafetyEvent]:
         """The events since the last drain (and forget them)."""
@@ -658,6 +789,22 @@ class SafetyLayer:
         for event in self.latch.events:
             self._emit(now, _LATCH_EVENTS[event.kind], event.reason, event.value)
 
+    def _watch(self, key: str) -> Freshness:
+        """The freshness of sensor ``key``, watched from now on."""
+        fresh = self._fresh.get(key)
+        if fresh is None:
+            kind, _, name = key.partition(":")
+            limit = self._limits.get(key)
+            if limit is None:
+                limit = self._limits.get(kind, self.stale_after)
+            if kind in ("laser", "obstacles"):
+                limit = self.stale_after
+            fresh = Freshness(limit, repeats_are_stale=kind == "camera")
+            self._fresh[key] = fresh
+            label = f"{_LABELS.get(kind, kind)} '{name}'" if name else _LABELS.get(kind, kind)
+            self.sensor_health[key] = SensorHealth(key, label, kind in _STOPPING, fresh.limit)
+        return fresh
+
     def _update_stale(
         self,
         now: float,
@@ -665,35 +812,103 @@ class SafetyLayer:
         pose: PoseEstimate | None,
         obstacles: Obstacles | None,
     ) -> None:
-        limit = self.stale_after
+        """Feed every sensor's reading to its :class:`Freshness`; stale motion sensors stop
+        the robot, stale mission sensors are reported (see the module docstring, 3.)."""
+        readings: dict[str, tuple[float | None, Hashable | None, str]] = {}
+        for lid, scan in frame.scans.items():
+            readings[f"laser:{lid}"] = (scan.stamp, None, "has no scan")
+        for cam_id, image in frame.cameras.items():
+            content = image.detections or None
+            readings[f"camera:{cam_id}"] = (image.stamp, content, "no image")
+        for uid, angles in frame.pan_tilt.items():
+            readings[f"ptu:{uid}"] = (angles.stamp, None, "no angles")
+        for key, reading in (("wheels", frame.wheels), ("imu", frame.imu), ("gps", frame.gps)):
+            none = "no fix" if key == "gps" else "no reading"
+            readings[key] = (None if reading is None else reading.stamp, None, none)
+        pose_ok = pose is not None and all(
+            math.isfinite(c) for c in (pose.pose_a.x, pose.pose_a.y, pose.pose_a.theta)
+        )
+        pose_why = "no pose estimate" if pose is None else "pose estimate not finite"
+        readings["pose"] = (pose.stamp if pose_ok and pose is not None else None, None, pose_why)
+        readings["obstacles"] = (
+            None if obstacles is None else obstacles.stamp,
+            None,
+            "no obstacle estimate",
+        )
+
+        for key in self._fresh:  # a sensor seen once and now absent from the frame
+            readings.setdefault(key, (None, None, _MISSING.get(key.partition(":")[0], "")))
         stale: dict[str, str] = {}
-        ids = list(self.lasers) + [lid for lid in frame.scans if lid not in self.lasers]
-        for lid in ids:
-            scan = frame.scans.get(lid)
-            if scan is None:
-                stale[f"laser:{lid}"] = f"laser '{lid}' has no scan"
-                continue
-            age = now - scan.stamp
-            if not age <= limit:
-                stale[f"laser:{lid}"] = f"laser '{lid}' scan {age:.3f} s old > {limit:.3f} s"
-        if not ids:
+        for key, (stamp, content, missing) in readings.items():
+            fresh = self._watch(key)
+            fresh.observe(stamp, content)
+            # a motion sensor with no reading in hand is stale at once, not after a limit
+            gone = stamp is None and self.sensor_health[key].stops
+            if gone or fresh.stale(now):
+                why = self._stale_detail(now, key, fresh, stamp, missing, gone)
+                self._mark_stale(now, key, why, stale)
+            else:
+                self._mark_fresh(now, key)
+        if not self.lasers and not frame.scans:
             stale["laser"] = "no laser scan"
-        if pose is None:
-            stale["pose"] = "no pose estimate"
-        elif not all(math.isfinite(c) for c in (pose.pose_a.x, pose.pose_a.y, pose.pose_a.theta)):
-            stale["pose"] = "pose estimate not finite"
-        if obstacles is None:
-            stale["obstacles"] = "no obstacle estimate"
-        elif not now - obstacles.stamp <= limit:
-            stale["obstacles"] = (
-                f"obstacle estimate {now - obstacles.stamp:.3f} s old > {limit:.3f} s"
-            )
+        self._stale_ptus = {
+            key[4:] for key, h in self.sensor_health.items() if key.startswith("ptu:") and h.stale
+        }
         if set(stale) != set(self._stale):
             if stale:
                 self._emit(now, STALE_SENSOR, "; ".join(stale.values()))
             else:
                 self._emit(now, SENSOR_FRESH, "sensor data fresh again")
         self._stale = stale
+
+    def _stale_detail(
+        self,
+        now: float,
+        key: str,
+        fresh: Freshness,
+        stamp: float | None,
+        missing: str,
+        gone: bool,
+    ) -> str:
+        """Why ``key`` is stale, starting with its label and the time of its last fresh
+        reading ("camera 'ptz' stale from 59.96 s: ...")."""
+        label = self.sensor_health[key].label
+        since = fresh.last_fresh
+        head = f"{label} stale from " + ("the start" if since is None else f"{since:.2f} s")
+        if gone or stamp is None:
+            return f"{head}: {missing}"
+        if key.startswith("obstacles"):
+            return f"{head}: obstacle estimate {now - stamp:.3f} s old > {fresh.limit:.3f} s"
+        last = fresh.last_stamp
+        if since is not None and last is not None and last > since and now - last <= fresh.limit:
+            return f"{head}: it repeats that image (no new one for over {fresh.limit:.3f} s)"
+        what = "scan" if key.startswith("laser:") else "reading"
+        return f"{head}: {what} {now - stamp:.3f} s old > {fresh.limit:.3f} s"
+
+    def _mark_stale(self, now: float, key: str, why: str, stopping: dict[str, str]) -> None:
+        health = self.sensor_health[key]
+        if not health.stale:
+            since = self._fresh[key].last_fresh
+            health.intervals.append(StaleInterval(since, now, None, why))
+            if not health.stops:
+                self._emit(now, SENSOR_DEGRADED, why, since)
+        if health.stops:
+            stopping[key] = why
+
+    def _mark_fresh(self, now: float, key: str) -> None:
+        health = self.sensor_health[key]
+        if not health.stale:
+            return
+        last = health.intervals[-1]
+        health.intervals[-1] = dataclasses.replace(last, until=now)
+        if not health.stops:
+            since = "the start" if last.since is None else f"{last.since:.2f} s"
+            self._emit(
+                now,
+                SENSOR_RECOVERED,
+                f"{health.label} fresh again at {now:.2f} s (stale from {since})",
+                last.since,
+            )
 
     def _stop_reason(self) -> str | None:
         if self.latch.latched:
@@ -779,7 +994,7 @@ class SafetyLayer:
         out = {}
         for uid, (pan_max, tilt_max) in self.rates.items():
             rate = requested.get(uid)
-            if rate is None:
+            if rate is None or uid in self._stale_ptus:
                 out[uid] = PanTiltRate()
                 continue
             pan = min(max(rate.pan, -pan_max), pan_max)

@@ -24,15 +24,20 @@ from executive.core.loader import load_mission
 from executive.core.model import Circle, ForbiddenZone, Frame, Mission, ZoneKind
 from executive.core.records import (
     Bumpers,
+    CameraFrame,
+    GpsFix,
+    ImuReading,
     LaserScan,
     Obstacles,
+    PanTilt,
     PanTiltRate,
     PoseEstimate,
     SensorFrame,
     TrackedObstacle,
     VelocityCommand,
+    WheelSpeeds,
 )
-from executive.safety import MotionLimits, SafetyLayer
+from executive.safety import MotionLimits, SafetyLayer, camera_ids
 from tests.conftest import SHIPPED_MISSIONS
 
 PERIOD = 0.05
@@ -122,6 +127,7 @@ class Bench:
         self.statuses = []
 
     def frame(self, scan_age: float = 0.0, bumper: bool = False, lasers: bool = True):
+        """Every sensor of the platform, fresh (the lasers ``scan_age`` old)."""
         t = self.t - scan_age
         scans = {}
         if lasers:
@@ -129,7 +135,19 @@ class Bench:
                 lid: LaserScan(t, -2.0, 0.01, 30.0, np.full(3, 30.0))
                 for lid in self.m.platform.lasers
             }
-        return SensorFrame(self.t, scans=scans, bumpers=Bumpers(self.t, bumper, False))
+        platform = self.m.platform
+        return SensorFrame(
+            self.t,
+            scans=scans,
+            cameras={
+                c: CameraFrame(self.t) for u in platform.cameras for c in camera_ids(platform, u)
+            },
+            pan_tilt={u: PanTilt(self.t, 0.0, 0.0) for u in platform.cameras},
+            wheels=WheelSpeeds(self.t, 0.0, 0.0),
+            imu=ImuReading(self.t, 0.0),
+            gps=GpsFix(self.t, self.x, self.y, 0.03),
+            bumpers=Bumpers(self.t, bumper, False),
+        )
 
     def pose(self) -> PoseEstimate:
         p = Pose2(self.x, self.y, self.th)
