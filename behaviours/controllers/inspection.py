@@ -80,7 +80,13 @@ class InspectItems(Controller):
         self._angles = Freshness(self.stale_limit)
 
     def initialise(self) -> None:
+        # Re-entered after an operator's take-over: the items already recorded for this
+        # checkpoint stay as they are (never inspected, nor recorded, twice).
+        progress: MissionProgress = self.read(PROGRESS, MissionProgress())
+        done = {r.item for r in progress.results if r.checkpoint == self.checkpoint}
         self._index = 0
+        while self._index < len(self.items) and self.items[self._index] in done:
+            self._index += 1
         self._item_start = self._aimed_at = None
         self._seen = False
         self._fresh_images = 0
