@@ -16,6 +16,7 @@ from pathlib import Path
 
 from lxml import etree
 from shapely.geometry import Point
+from shapely.geometry.base import BaseGeometry
 
 from executive.core.frames import AircraftPlacement, Pose2
 from executive.core.geometry import to_shapely
@@ -403,34 +404,81 @@ def _check_references(r: ElementReader, scenario: Scenario, fault_el: list) -> N
             )
 
 
+MAX_MOVING_AGENTS = 500
+"""Moving obstacles a scenario may hold (paths, chasers and every person of every group):
+each is simulated at the physics rate, so more would make a run crawl."""
+
+
+def _initial_geometry(obstacle: Obstacle) -> BaseGeometry:
+    """Where an obstacle is at the start of the run (a group: the circle it walks in)."""
+    if isinstance(obstacle, LoiteringGroup):
+        return Point(*obstacle.center).buffer(obstacle.radius + obstacle.person_radius)
+    if isinstance(obstacle, StaticObstacle):
+        pose, body = obstacle.pose, obstacle.body
+    else:
+        first = obstacle.waypoints[0] if isinstance(obstacle, PathMover) else obstacle.start
+        heading = 0.0
+        if isinstance(obstacle, PathMover) and len(obstacle.waypoints) > 1:
+            (x0, y0), (x1, y1) = obstacle.waypoints[0], obstacle.waypoints[1]
+            heading = math.atan2(y1 - y0, x1 - x0)
+        pose, body = Pose2(first[0], first[1], heading), obstacle.body
+    if body.radius is not None:
+        return Point(pose.x, pose.y).buffer(body.radius)
+    return to_shapely(body.polygon(pose))
+
+
 def _check_overlaps(r: ElementReader, scenario: Scenario, obstacle_el: list) -> None:
-    """Static obstacles must not overlap the aircraft footprint or the robot's start."""
+    """Nothing may stand where the robot starts or charges, nor a static obstacle in the
+    aircraft: the aircraft footprint at its *true* parking pose (nominal + offset) and every
+    obstacle where it is at the start (a mover's first point, a group's circle) must
+    leave the robot's start and the charging station clear (the robot turning on the spot
+    there sweeps a disc of half its diagonal)."""
     placement = scenario.true_placement()
     footprint = []
     for shape in scenario.mission.aircraft.footprint:
         pts = placement.to_airport_xy(to_shapely(shape).exterior.coords)
-        footprint.append((shape.id, Polygon(shape.id, tuple(map(tuple, pts)))))
-    start = scenario.start
-    half_diag = math.hypot(scenario.mission.platform.length, scenario.mission.platform.width) / 2
-    robot = Point(start.x, start.y).buffer(half_diag)
-    for el, obstacle in zip(obstacle_el, scenario.obstacles, strict=True):
-        if not isinstance(obstacle, StaticObstacle):
-            continue
-        body = obstacle.body
-        geom = (
-            Point(obstacle.pose.x, obstacle.pose.y).buffer(body.radius)
-            if body.radius is not None
-            else to_shapely(body.polygon(obstacle.pose))
-        )
-        for shape_id, poly in footprint:
-            if geom.intersects(to_shapely(poly)):
+        footprint.append((shape.id, to_shapely(Polygon(shape.id, tuple(map(tuple, pts))))))
+    half_diag = scenario.mission.platform.turning_radius
+    start, station = scenario.start, scenario.mission.airport.station
+    spots = [("the robot's start", Point(start.x, start.y).buffer(half_diag))]
+    if math.hypot(start.x - station.x, start.y - station.y) > 1e-6:
+        spots.append(("the charging station", Point(station.x, station.y).buffer(half_diag)))
+    offset_el = r.child(r.doc.root, "parking-offset")
+    aircraft_el = offset_el if offset_el is not None else r.doc.root
+    for shape_id, poly in footprint:
+        for label, disc in spots:
+            if poly.intersects(disc):
                 r.problem(
-                    el,
-                    "obstacle-overlap",
-                    f"obstacle '{obstacle.id}' overlaps the aircraft footprint '{shape_id}' "
-                    "(at the true parking pose)",
+                    aircraft_el,
+                    "aircraft-overlap",
+                    f"the aircraft footprint '{shape_id}' (at the true parking pose, nominal "
+                    f"+ parking offset) overlaps {label}: the robot would start inside it",
                 )
-        if geom.intersects(robot):
-            r.problem(
-                el, "obstacle-overlap", f"obstacle '{obstacle.id}' overlaps the robot's start"
-            )
+    moving = 0
+    for el, obstacle in zip(obstacle_el, scenario.obstacles, strict=True):
+        if isinstance(obstacle, LoiteringGroup):
+            moving += obstacle.count
+        elif not isinstance(obstacle, StaticObstacle):
+            moving += 1
+        if isinstance(obstacle, PathMover) and not obstacle.waypoints:
+            continue  # the XSD requires waypoints; nothing to place
+        geom = _initial_geometry(obstacle)
+        if isinstance(obstacle, StaticObstacle):
+            for shape_id, poly in footprint:
+                if geom.intersects(poly):
+                    r.problem(
+                        el,
+                        "obstacle-overlap",
+                        f"obstacle '{obstacle.id}' overlaps the aircraft footprint "
+                        f"'{shape_id}' (at the true parking pose)",
+                    )
+        for label, disc in spots:
+            if geom.intersects(disc):
+                r.problem(el, "obstacle-overlap", f"obstacle '{obstacle.id}' overlaps {label}")
+    if moving > MAX_MOVING_AGENTS:
+        r.problem(
+            r.child(r.doc.root, "obstacles"),
+            "too-many-obstacles",
+            f"{moving} moving obstacles (people in groups included); the limit is "
+            f"{MAX_MOVING_AGENTS}",
+        )

@@ -129,7 +129,7 @@ def test_referenced_special_file_is_refused(tmp_path: Path, what: str) -> None:
         else:
             target.symlink_to("/dev/zero")
     text = (BASE / "mission.xml").read_text(encoding="utf-8")
-    (base / "m.xml").write_text(text.replace('"aircraft.xml"', '"aircraft.xml"'), "utf-8")
+    (base / "m.xml").write_text(text, "utf-8")
     scenario = (BASE / "scenario.xml").read_text(encoding="utf-8")
     (base / "s.xml").write_text(scenario, "utf-8")
     run = _validate(base / "m.xml", base / "s.xml")

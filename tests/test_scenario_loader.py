@@ -43,7 +43,7 @@ BROKEN = [
     ('x="-40" y="30"', 'x="-3.8" y="-17.7"', 6, "obstacle-overlap", "main-gear"),
     ('x="-40" y="30"', 'x="-60" y="10"', 6, "obstacle-overlap", "the robot's start"),
     ('dheading-deg="2"', 'dheading-deg="north"', 3, "schema", "'north' is not"),
-    ('<noise pixel="1.0"/>', '<noise pixel="-1"/>', 4, "schema", "must be at least 0"),
+    ('<noise pixel="1.0"/>', '<noise pixel="-1"/>', 4, "schema", "it must be between 0 and 20 px"),
     ('kind="vehicle"', 'kind="plane"', 6, "schema", "'plane' is not one of"),
     ("<faults>", '<faults><gps-loss at="5"/>', 12, "schema", "missing the required attribute"),
 ]

@@ -22,13 +22,54 @@ from executive.core.model import CameraSpec, Feature, Frame, Mission
 Point2 = tuple[float, float]
 
 __all__ = [
+    "SLOWEST_TICK",
     "clearance_problems",
     "leg_problems",
     "polygon_problem",
+    "stopping_distance",
+    "stopping_problem",
     "suggest",
     "why_no_camera_sees",
     "why_not_visible",
 ]
+
+
+SLOWEST_TICK = 0.1
+"""Seconds between two decisions at the executive's slowest rate (10 Hz): a mission
+does not state the rate it runs at, so r_ES must hold at the slowest one."""
+
+
+def stopping_distance(speed: float, deceleration: float, tick: float = SLOWEST_TICK) -> float:
+    """Metres driven from seeing an obstacle to standing still: one tick of reaction at
+    ``speed``, then braking at ``deceleration`` (v * T + v^2 / (2 a))."""
+    return speed * tick + speed * speed / (2.0 * deceleration)
+
+
+def stopping_problem(
+    r_es: float, speeds: dict[str, float], deceleration: float, tick: float = SLOWEST_TICK
+) -> str | None:
+    """Why r_ES is too small for the robot to stop in it at the mission's top speed.
+
+    The thesis sets the executive's deadline from emergency braking at maximum speed
+    (seed 000, lines 4593-4630): the robot must stop before reaching what it detected at
+    r_ES. ``speeds`` names each speed the mission commands (cruise, inspection, waypoint
+    speeds); the fastest decides. ``deceleration`` is the platform's max-acceleration.
+    """
+    if not speeds or not r_es > 0.0 or not deceleration > 0.0:
+        return None
+    name, speed = max(speeds.items(), key=lambda item: item[1])
+    if not math.isfinite(speed) or speed <= 0.0:
+        return None
+    needed = stopping_distance(speed, deceleration, tick)
+    if r_es >= needed - 1e-9:  # exactly enough is enough (0.1 s * 1 m/s + 0.5 m = 0.6 m)
+        return None
+    return (
+        f"r-es {r_es:g} m is shorter than the {needed:.2f} m the robot needs to stop from "
+        f"{name} {speed:g} m/s with max-acceleration {deceleration:g} m/s^2: one "
+        f"{tick:g} s tick of reaction ({speed * tick:.2f} m, the executive's slowest rate) "
+        f"plus braking v^2/(2a) ({speed * speed / (2.0 * deceleration):.2f} m); raise r-es, "
+        "lower the speed or raise max-acceleration"
+    )
 
 
 def suggest(name: str, known: Iterable[str]) -> str:

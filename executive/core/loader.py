@@ -26,6 +26,7 @@ from executive.core.model import (
     CameraKind,
     CameraSpec,
     Checkpoint,
+    Circle,
     Dimensions,
     Feature,
     ForbiddenZone,
@@ -39,6 +40,7 @@ from executive.core.model import (
     Point3,
     SafetyRadii,
     ServoMethod,
+    Shape,
     TurnMode,
     Waypoint,
     ZoneKind,
@@ -109,6 +111,7 @@ def _build_aircraft(doc: XmlDocument, sink: ProblemSink) -> Aircraft | None:
     outline_el = r.children(r.child(root, "outline"), "polygon")
     r.unique([*footprint_el, *outline_el], "shape")
     footprint = tuple(r.shape(e, r.str_(e, "id")) for e in footprint_el)
+    _check_footprint_extent(r, r.child(root, "footprint"), footprint)
     outline = tuple(r.polygon(e, r.str_(e, "id")) for e in outline_el)
 
     feature_el = r.children(r.child(root, "features"), "feature")
@@ -184,6 +187,36 @@ def _build_aircraft(doc: XmlDocument, sink: ProblemSink) -> Aircraft | None:
         description=r.text(r.child(root, "description")),
         source=sink.file,
     )
+
+
+MAX_FOOTPRINT_EXTENT = 80.0
+"""Metres the footprint may span along x and along y. The largest airliners' gear and
+engines span about 30 m x 50 m (A380); the localisation builds a distance field over the
+footprint at 5 cm, so a larger one would need hundreds of megabytes."""
+
+
+def _check_footprint_extent(
+    r: ElementReader, element: etree._Element | None, footprint: tuple[Shape, ...]
+) -> None:
+    xs: list[float] = []
+    ys: list[float] = []
+    for shape in footprint:
+        if isinstance(shape, Circle):
+            xs += [shape.cx - shape.radius, shape.cx + shape.radius]
+            ys += [shape.cy - shape.radius, shape.cy + shape.radius]
+        else:
+            xs += [x for x, _ in shape.points]
+            ys += [y for _, y in shape.points]
+    if element is None or not xs or not all(map(math.isfinite, xs + ys)):
+        return
+    dx, dy = max(xs) - min(xs), max(ys) - min(ys)
+    if max(dx, dy) > MAX_FOOTPRINT_EXTENT:
+        r.problem(
+            element,
+            "footprint-extent",
+            f"the footprint spans {dx:.1f} m x {dy:.1f} m; at most {MAX_FOOTPRINT_EXTENT:g} m "
+            "either way (the gear and engines of the largest airliners span 30 m x 50 m)",
+        )
 
 
 # -- mission ---------------------------------------------------------------------------------------
@@ -263,6 +296,23 @@ def _build_mission(
                 f"{attr} {value:g} m/s exceeds the platform's max-speed {platform.max_speed:g} m/s",
                 attr,
             )
+
+    speeds = {
+        "cruise-speed": navigation.cruise_speed,
+        "inspection-speed": navigation.inspection_speed,
+    }
+    speed_el = [
+        *r.children(r.child(root, "approach"), "waypoint"),
+        *r.children(r.child(root, "return"), "waypoint"),
+    ]
+    for we in speed_el:
+        if we.get("speed") is not None:
+            speeds[f"waypoint '{r.str_(we, 'id')}' speed"] = r.num(we, "speed")
+    # a speed above max-speed is reported as such (speed-limit), not a second time here
+    speeds = {k: v for k, v in speeds.items() if v <= platform.max_speed}
+    stopping = checks.stopping_problem(safety.r_es, speeds, platform.max_acceleration)
+    if stopping:
+        r.problem(safety_el, "stopping-distance", stopping, "r-es")
 
     airport_el = r.child(root, "airport")
     assert airport_el is not None

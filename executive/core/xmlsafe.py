@@ -447,6 +447,110 @@ def _plain_schema_message(message: str) -> tuple[str, str | None]:
     return text.rstrip("."), None
 
 
+@dataclass(frozen=True)
+class Range:
+    """The physical range of a numeric XSD type: its facets and its unit (xs:appinfo)."""
+
+    low: float
+    low_inclusive: bool
+    high: float
+    high_inclusive: bool
+    unit: str
+    integer: bool = False
+
+    def __str__(self) -> str:
+        unit = f" {self.unit}" if self.unit else ""
+        low = _number(self.low) + ("" if self.low_inclusive else " (excluded)")
+        high = _number(self.high) + ("" if self.high_inclusive else " (excluded)")
+        return f"between {low} and {high}{unit}"
+
+
+_XS = "{http://www.w3.org/2001/XMLSchema}"
+
+
+def _number(value: float) -> str:
+    """A bound as written in the XSD: whole numbers in full (a seed's 4294967295)."""
+    return str(int(value)) if value.is_integer() and abs(value) < 1e15 else f"{value:g}"
+
+
+@functools.cache
+def attribute_ranges(xsd_path: Path) -> dict[tuple[str, str], Range]:
+    """(element name, attribute name) -> the attribute's range, read from the XSD's facets.
+
+    The ranges are written once, as facets of named types in the XSD; this reads them
+    back so that a value out of range is reported with the whole range and its unit.
+    Element names whose declarations disagree on an attribute's range are left out.
+    """
+    root = etree.parse(str(xsd_path), _hardened_parser()).getroot()
+    simple = {t.get("name"): t for t in root.iter(f"{_XS}simpleType") if t.get("name")}
+
+    def type_range(name: str) -> Range | None:
+        bounds: dict[str, float] = {}
+        unit = ""
+        integer = name.endswith("Integer")
+        while name in simple:
+            node = simple[name]
+            info = node.find(f"{_XS}annotation/{_XS}appinfo")
+            if info is not None and not unit:
+                unit = (info.text or "").strip()
+            restriction = node.find(f"{_XS}restriction")
+            if restriction is None:
+                return None
+            for facet in restriction:
+                tag = etree.QName(facet).localname if isinstance(facet.tag, str) else ""
+                if tag.startswith(("min", "max")) and tag not in bounds:
+                    bounds[tag] = float(facet.get("value", "nan"))
+            name = restriction.get("base", "")
+            integer = integer or name.endswith("Integer")
+        low = [(v, k == "minInclusive") for k, v in bounds.items() if k.startswith("min")]
+        high = [(v, k == "maxInclusive") for k, v in bounds.items() if k.startswith("max")]
+        if not low or not high or abs(high[0][0]) > 1e300:
+            return None
+        return Range(low[0][0], low[0][1], high[0][0], high[0][1], unit, integer)
+
+    by_type: dict[str, dict[str, Range]] = {}
+    for complex_type in root.iter(f"{_XS}complexType"):
+        attrs: dict[str, Range] = {}
+        for attribute in complex_type.iter(f"{_XS}attribute"):
+            found = type_range(attribute.get("type", ""))
+            if found is not None:
+                attrs[attribute.get("name", "")] = found
+        by_type[complex_type.get("name", "")] = attrs
+    ranges: dict[tuple[str, str], Range] = {}
+    ambiguous: set[tuple[str, str]] = set()
+    for element in root.iter(f"{_XS}element"):
+        for attribute, found in by_type.get(element.get("type", ""), {}).items():
+            key = (element.get("name", ""), attribute)
+            if ranges.setdefault(key, found) != found:
+                ambiguous.add(key)
+    return {k: v for k, v in ranges.items() if k not in ambiguous}
+
+
+_OUT_OF_RANGE = re.compile(
+    r"Element '(?:\{[^}]*\})?([\w.\-]+)', attribute '([\w.\-]+)': (?:\[facet '(?:min|max)"
+    r"(?:In|Ex)clusive'\] The value '([^']*)'|'([^']*)' is not a valid value of the atomic type)",
+    re.S,
+)
+
+
+def _range_message(raw: str, ranges: dict[tuple[str, str], Range]) -> str | None:
+    """``<e> attribute 'a': must be between L and H unit, not V`` for an out-of-range or
+    non-numeric value of an attribute with a known range, else None."""
+    m = _OUT_OF_RANGE.match(raw)
+    if not m or (m.group(1), m.group(2)) not in ranges:
+        return None
+    element, attribute = m.group(1), m.group(2)
+    value = m.group(3) if m.group(3) is not None else m.group(4)
+    wanted = ranges[(element, attribute)]
+    if value.strip().lstrip("+-").lower() in {"nan", "inf", "infinity"}:
+        what = "is not a finite number"
+    elif m.group(3) is None:
+        what = "is not a whole number" if wanted.integer else "is not a number"
+    else:
+        what = "is out of range"
+    return f"<{element}> attribute '{attribute}': '{value}' {what}; it must be {wanted}"
+
+
 _LONG_QUOTED = re.compile(r"'([^']{61,})'")
 
 
@@ -463,8 +567,10 @@ def validate_against(doc: XmlDocument, xsd_path: Path, sink: ProblemSink) -> boo
         return True
     tree = doc.root.getroottree()
     seen: set[tuple[int, int]] = set()
+    ranges = attribute_ranges(xsd_path)
     for entry in schema.error_log:
         message, attribute = _plain_schema_message(entry.message)
+        message = _range_message(entry.message, ranges) or message
         message = _LONG_QUOTED.sub(_shorten, message)
         line, column = entry.line, entry.column
         try:
