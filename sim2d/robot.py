@@ -3,8 +3,11 @@
 :class:`SimRobot` owns a :class:`~sim2d.world.World` and samples every sensor at its own
 rate on the simulated clock (lasers 40 Hz, cameras 25 Hz as the platform says; wheels
 50 Hz, IMU 100 Hz, GPS as the scenario says), applies the scenario's faults, and keeps the
-latest reading of each for :meth:`read`. The runtime calls :meth:`send` with a command
-and :meth:`advance` to let simulated time pass.
+latest reading of each for :meth:`read`. A frozen sensor (laser dropout, wheel, IMU or
+pan-tilt freeze) keeps its last reading with its old stamp, as a driver that stopped
+publishing would; a frozen camera goes on publishing its last image with fresh stamps.
+The runtime calls :meth:`send` with a command and :meth:`advance` to let simulated time
+pass.
 
 What the robot would see is kept apart from ground truth: :attr:`truth` (poses, contacts)
 is for reports and tests only, and both can be logged as JSONL that is identical, byte
@@ -30,6 +33,7 @@ from executive.core.records import (
     GpsFix,
     ImuReading,
     LaserScan,
+    PanTilt,
     SensorFrame,
     VelocityCommand,
     WheelSpeeds,
@@ -116,6 +120,7 @@ class SimRobot:
         self._wheels: WheelSpeeds | None = None
         self._imu: ImuReading | None = None
         self._gps: GpsFix | None = None
+        self._angles: dict[str, PanTilt] = {}  # the last published pan-tilt angles
         self._logged_collisions = 0
         self._opened: list[IO[str]] = []
         self._truth_out = self._open_log(truth_log)
@@ -127,11 +132,15 @@ class SimRobot:
         t = self.time
         front, rear = self.world.bumpers()
         hit = self._fault_targets(FaultKind.BUMPER_HIT, t)
+        frozen = self._fault_targets(FaultKind.PTU_FREEZE, t)
+        for uid, unit in self.units.items():
+            if uid not in frozen or uid not in self._angles:
+                self._angles[uid] = unit.reading(t)
         return SensorFrame(
             stamp=t,
             scans=dict(self._scans),
             cameras=dict(self._cameras),
-            pan_tilt={uid: unit.reading(t) for uid, unit in self.units.items()},
+            pan_tilt=dict(self._angles),
             wheels=self._wheels,
             imu=self._imu,
             gps=self._gps,
@@ -211,12 +220,12 @@ class SimRobot:
                     (d.feature, d.point, round(d.u, 3), round(d.v, 3)) for d in frame.detections
                 ]
                 self._log_sensor(t, f"camera:{rig.id}", seen)
-        if self.wheel_schedule.due(t):
+        if self.wheel_schedule.due(t) and not self._fault_targets(FaultKind.WHEEL_FREEZE, t):
             left, right = world.base.wheel_speeds()
             self._wheels = self.wheels.read(left, right, t)
             if self._sensor_out is not None:
                 self._log_sensor(t, "wheels", [_fmt(self._wheels.left), _fmt(self._wheels.right)])
-        if self.imu_schedule.due(t):
+        if self.imu_schedule.due(t) and not self._fault_targets(FaultKind.IMU_FREEZE, t):
             self._imu = self.imu.read(float(world.robot_body.angular_velocity), t)
             if self._sensor_out is not None:
                 self._log_sensor(t, "imu", _fmt(self._imu.yaw_rate))

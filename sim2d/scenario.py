@@ -52,6 +52,9 @@ class FaultKind(StrEnum):
     GPS_LOSS = "gps-loss"
     SLIP_BURST = "slip-burst"
     BUMPER_HIT = "bumper-hit"
+    WHEEL_FREEZE = "wheel-freeze"
+    IMU_FREEZE = "imu-freeze"
+    PTU_FREEZE = "ptu-freeze"
 
 
 @dataclass(frozen=True, slots=True)
@@ -400,6 +403,15 @@ def _check_references(r: ElementReader, scenario: Scenario, fault_el: list) -> N
                 "unknown-reference",
                 f"camera '{fault.target}' is not a camera of the platform "
                 f"(known: {', '.join(cameras)})",
+                "camera",
+            )
+        units = scenario.mission.platform.cameras
+        if fault.kind is FaultKind.PTU_FREEZE and fault.target not in units:
+            r.problem(
+                el,
+                "unknown-reference",
+                f"camera '{fault.target}' is not a camera unit of the platform "
+                f"(known: {', '.join(units) or 'none'})",
                 "camera",
             )
 
