@@ -18,6 +18,15 @@ The tree::
                                   [reached?] -> stop
                                   go to goal (default)]
 
+The operator's take-over pauses the mission; the hand-back resumes it where it was
+(ARCHITECTURE §5). The mission's memory sequences are :class:`ResumableSequence`: py_trees
+restarts a memory sequence that a higher-priority branch has stopped, which would start
+the mission again from ``start mission`` (empty progress, every checkpoint driven again).
+A resumable one remembers the child that was running and resumes there; a checkpoint
+resumes at its own navigation (the robot may have been moved), and the inspection skips
+the items the progress already records. An operator's abort holds the robot still through
+the same branch, for good; the runtime ends the run as ``aborted``.
+
 After building, :func:`check_tree` proves the wiring: every blackboard key a behaviour
 reads has a writer that runs before it (or is written by the runtime), and every
 controller of a guard selector sits behind its guard (or is the selector's default).
@@ -101,6 +110,69 @@ class GuardedBranch(py_trees.composites.Sequence):
 
     def __init__(self, name: str, guard: Guard, controller: Controller) -> None:
         super().__init__(name, memory=False, children=[guard, controller])
+
+
+class ResumableSequence(py_trees.composites.Sequence):
+    """A memory sequence that a pre-emption pauses instead of resetting (ARCHITECTURE §5).
+
+    py_trees' memory sequence starts again from its first child whenever it is ticked
+    after a stop to INVALID, and that is what a selector does to a running lower-priority
+    branch when a higher one engages (the operator's take-over): the mission would start
+    over. This one records the child that was running when it is stopped while RUNNING and
+    resumes there on its next tick: the children before it (done) are not run again, the
+    one that was running starts afresh (``initialise`` again: a navigation re-plans from
+    where the robot now is). Nested resumable sequences each keep their own place.
+
+    ``rewind_to``: a pause at or after that child resumes at it instead. A checkpoint
+    resumes at its own navigation, since what follows it (aim the camera, inspect, dwell)
+    needs the robot at the checkpoint and the operator may have moved it.
+
+    A sequence that ends (SUCCESS or FAILURE) starts from its first child next time, as
+    py_trees' own does; a fresh start forgets the pauses recorded below it, so a stale
+    place never leaks into a new pass. BehaviorTree.CPP v4's ``SequenceWithMemory`` keeps
+    its index through a halt in the same way (:attr:`btcpp_tag`, used by the export).
+    """
+
+    btcpp_tag = "SequenceWithMemory"
+
+    def __init__(
+        self,
+        name: str,
+        children: list[py_trees.behaviour.Behaviour],
+        rewind_to: int | None = None,
+    ) -> None:
+        super().__init__(name, memory=True, children=children)
+        if rewind_to is not None and not 0 <= rewind_to < len(children):
+            raise ValueError(f"'{name}': rewind_to {rewind_to} is not a child index")
+        self.rewind_to = rewind_to
+        self.paused_at: int | None = None
+        """Index of the child to resume at, while paused (None: start from the first)."""
+
+    def stop(self, new_status: Status = Status.INVALID) -> None:
+        if new_status == Status.INVALID:
+            if self.status == Status.RUNNING and self.current_child is not None:
+                index = self.children.index(self.current_child)
+                if self.rewind_to is not None:
+                    index = min(index, self.rewind_to)
+                self.paused_at = index
+        else:
+            self.paused_at = None
+        super().stop(new_status)
+
+    def tick(self) -> Iterator[py_trees.behaviour.Behaviour]:
+        if self.status != Status.RUNNING:
+            if self.paused_at is not None:
+                # py_trees' memory sequence carries on at current_child while RUNNING
+                self.current_child = self.children[self.paused_at]
+                self.paused_at = None
+                self.status = Status.RUNNING
+                self.feedback_message = f"resumed at '{self.current_child.name}'"
+            else:
+                self.feedback_message = ""
+                for node in self.iterate():
+                    if node is not self and isinstance(node, ResumableSequence):
+                        node.paused_at = None
+        yield from super().tick()
 
 
 class Stop(Controller):
@@ -302,7 +374,7 @@ class _Builder:
                 self.navigate(wp.id, self.waypoint_goal(wp), wp.heading is not None, loose)
             )
         children.append(self.navigate("P", self.waypoint_goal(m.handover), False, (0.2, None)))
-        return py_trees.composites.Sequence("approach", memory=True, children=children)
+        return ResumableSequence("approach", children)
 
     def checkpoint(self, cp: Checkpoint) -> py_trees.behaviour.Behaviour:
         m = self.mission
@@ -312,6 +384,7 @@ class _Builder:
         for k, (vx, vy) in enumerate(cp.via, start=1):
             via = Goal(Pose2(vx, vy, 0.0), Frame.AIRCRAFT, self.placement)
             children.append(self.navigate(f"{cp.id} via {k}", via, False, (0.3, None)))
+        reach = len(children)  # a pause from here on resumes by reaching the checkpoint
         children.append(
             self.navigate(cp.id, self.checkpoint_goal(cp), True, self.checkpoint_tolerance)
         )
@@ -363,14 +436,12 @@ class _Builder:
         if cp.dwell > 0:
             children.append(Dwell(cp.dwell, name=f"dwell {cp.id}"))
         children.append(SetProgress("inspection", checkpoint=cp.id, done=True))
-        return py_trees.composites.Sequence(f"checkpoint {cp.id}", memory=True, children=children)
+        return ResumableSequence(f"checkpoint {cp.id}", children, rewind_to=reach)
 
     def inspection(self) -> py_trees.behaviour.Behaviour:
         done = set(self.options.resume.completed) if self.options.resume else set()
         todo = [cp for cp in self.mission.checkpoints if cp.id not in done]
-        return py_trees.composites.Sequence(
-            "inspection", memory=True, children=[self.checkpoint(cp) for cp in todo]
-        )
+        return ResumableSequence("inspection", [self.checkpoint(cp) for cp in todo])
 
     def return_home(self) -> py_trees.behaviour.Behaviour:
         m = self.mission
@@ -390,7 +461,7 @@ class _Builder:
                 (m.navigation.position_tolerance, m.navigation.heading_tolerance),
             )
         )
-        return py_trees.composites.Sequence("return", memory=True, children=children)
+        return ResumableSequence("return", children)
 
     def build(self) -> py_trees.behaviour.Behaviour:
         m = self.mission
@@ -411,7 +482,7 @@ class _Builder:
         phases.append(self.inspection())
         phases.append(self.return_home())
         phases.append(SetProgress("done", name="mission done"))
-        mission = py_trees.composites.Sequence("mission", memory=True, children=phases)
+        mission = ResumableSequence("mission", phases)
         mode = py_trees.composites.Selector(
             "mode",
             memory=False,

@@ -16,6 +16,9 @@ py_trees                               BT.CPP v4
 =====================================  ============================================
 ``Sequence(memory=True)``              ``<Sequence>`` (resumes at the running child,
                                        restarts after a failure)
+a Sequence with ``btcpp_tag``          that tag: ``ResumableSequence`` (the mission's
+                                       phases) is ``<SequenceWithMemory>``, which
+                                       keeps its place through a halt
 ``Sequence(memory=False)``             ``<ReactiveSequence>`` (e.g. ``GuardedBranch``)
 ``Selector(memory=True)``              ``<Fallback>``
 ``Selector(memory=False)``             ``<ReactiveFallback>`` (e.g. ``GuardSelector``)
@@ -61,6 +64,10 @@ no one-to-one equivalent. With ``keep_running_unselected=True`` the children out
 selection are wrapped in ``<KeepRunningUntilFailure>`` (py_trees ``SuccessIsRunning``),
 which restores the py_trees semantics at the cost of one extra node per child; by default
 the tree is exported node for node and the Parallel carries an XML comment saying so.
+``<SequenceWithMemory>`` differs from a ``ResumableSequence`` in two details: after a
+failure it retries the failed child instead of starting over (a failed walkaround mission
+ends the run, so this never shows), and it has no ``rewind_to`` (a checkpoint paused
+after it was reached resumes at its navigation).
 """
 
 from __future__ import annotations
@@ -698,7 +705,8 @@ def _bt_element(node: Behaviour, model: _Model, keep_running_unselected: bool) -
     kind = _kind(node)
     memory = _memory(node)
     if kind == SEQUENCE:
-        element = etree.Element("Sequence" if memory else "ReactiveSequence", name=node.name)
+        tag = getattr(node, "btcpp_tag", None) or ("Sequence" if memory else "ReactiveSequence")
+        element = etree.Element(tag, name=node.name)
     elif kind == SELECTOR:
         element = etree.Element("Fallback" if memory else "ReactiveFallback", name=node.name)
     elif kind == PARALLEL:

@@ -23,7 +23,7 @@ from py_trees.ports import PortInformation, PortsMixin
 from behaviours.base import Controller, Guard, Node
 from behaviours.guards.conditions import EmergencyStop
 from behaviours.keys import COMMAND, OBSTACLES, POSE, PROGRESS
-from executive.compiler import compile_mission
+from executive.compiler import ResumableSequence, compile_mission
 from executive.core.loader import load_mission
 from executive.export import (
     BTCPP_BUILTINS,
@@ -319,6 +319,8 @@ def test_render_a320_is_one_wide_legible_figure(a320_root, tmp_path):
 # -- BehaviorTree.CPP v4 ------------------------------------------------------------------------
 def expected_tag(node) -> str:
     """The mapping of the module docstring, restated."""
+    if isinstance(node, ResumableSequence):
+        return "SequenceWithMemory"
     if isinstance(node, Sequence):
         return "Sequence" if node.memory else "ReactiveSequence"
     if isinstance(node, Selector):
@@ -506,11 +508,12 @@ def test_btcpp_decorators_and_renamed_builtins():
 # true), <Parallel> (attribute policy, default success_on_one; success_count/failure_count
 # are ignored), py_trees' own decorators by class name (<Inverter>), <SubTree> and
 # <BehaviorTree>; it ignores <TreeNodesModel> and comments. It has no <ReactiveSequence>,
-# <ReactiveFallback>, <KeepRunningUntilFailure>, nor <Action ID>/<Condition ID>: any other
-# tag must be in its node_registry, a {tag: PortsMixin class} mapping. So the test gives it
-# what Groot2 or BT.CPP would be given: the node types of <TreeNodesModel> (made into
-# PortsMixin stubs with exactly the declared ports) and BT.CPP's two reactive controls and
-# KeepRunningUntilFailure as the py_trees classes they mean. Names come back dotted with
+# <SequenceWithMemory>, <ReactiveFallback>, <KeepRunningUntilFailure>, nor <Action ID>/
+# <Condition ID>: any other tag must be in its node_registry, a {tag: PortsMixin class}
+# mapping. So the test gives it what Groot2 or BT.CPP would be given: the node types of
+# <TreeNodesModel> (made into PortsMixin stubs with exactly the declared ports) and BT.CPP's
+# reactive controls, SequenceWithMemory and KeepRunningUntilFailure as the py_trees classes
+# they mean. Names come back dotted with
 # their parents' names (parent.child), which the comparison strips.
 
 
@@ -521,6 +524,19 @@ class ReactiveSequence(PortsMixin, Sequence, register=False):
     def __init__(self, name, children=None, behaviour_class_name=None):
         super().__init__(
             name=name, memory=False, children=children, behaviour_class_name=behaviour_class_name
+        )
+
+
+class SequenceWithMemory(PortsMixin, Sequence, register=False):
+    """BT.CPP's SequenceWithMemory: a memory sequence (that also keeps its place through a
+    halt, which the py_trees parser cannot say)."""
+
+    INPUT_PORTS: ClassVar[dict] = {}
+    OUTPUT_PORTS: ClassVar[dict] = {}
+
+    def __init__(self, name, children=None, behaviour_class_name=None):
+        super().__init__(
+            name=name, memory=True, children=children, behaviour_class_name=behaviour_class_name
         )
 
 
@@ -569,6 +585,7 @@ def load_with_py_trees(text: str, tmp_path: Path):
     _, model = parse_btcpp(text)
     registry = {
         "ReactiveSequence": ReactiveSequence,
+        "SequenceWithMemory": SequenceWithMemory,
         "ReactiveFallback": ReactiveFallback,
         "KeepRunningUntilFailure": KeepRunningUntilFailure,
     }

@@ -201,14 +201,27 @@ class Reached(Guard):
 
 
 class OperatorTakeOver(Guard):
-    """The operator has asked to take over (collaborative mode)."""
+    """The operator has the robot: a take-over (collaborative mode) or an abort.
+
+    A take-over lasts as long as the operator asks for it; its branch pre-empts the
+    mission, which pauses and resumes at the hand-back (:class:`ResumableSequence` in the
+    compiler). An abort is latched: one request is enough and the mission never resumes
+    (the runtime ends the run as ``aborted``); until then the robot is held still.
+    """
 
     reads = (OPERATOR,)
 
     def __init__(self, name: str = "operator takes over?") -> None:
         super().__init__(name)
+        self.aborted = False
 
     def update(self) -> Status:
         operator: OperatorRequests = self.read(OPERATOR, OperatorRequests())
-        self.feedback_message = "operator request" if operator.take_over else "no request"
-        return Status.SUCCESS if operator.take_over else Status.FAILURE
+        self.aborted = self.aborted or operator.abort
+        if self.aborted:
+            self.feedback_message = "operator abort"
+        elif operator.take_over:
+            self.feedback_message = "operator request"
+        else:
+            self.feedback_message = "no request"
+        return Status.SUCCESS if self.aborted or operator.take_over else Status.FAILURE
