@@ -11,6 +11,7 @@ import json
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from executive import __version__
 from executive.core.loader import check_file, load_aircraft, load_mission, root_name
@@ -23,6 +24,9 @@ from executive.core.problems import (
 )
 from executive.core.resources import missions_dir, shipped_mission_files
 from sim2d.scenario import check_scenario, load_scenario
+
+if TYPE_CHECKING:
+    from executive.runtime import StopRequest
 
 EXIT_OK = 0
 EXIT_FAILED = 1
@@ -128,14 +132,45 @@ def cmd_validate(args: argparse.Namespace) -> int:
     return EXIT_OK if all_valid else EXIT_BAD_INPUT
 
 
+def _bad_argument(message: str) -> int:
+    """One line on stderr, the bad-input exit status; nothing was done."""
+    print(f"walkaround: {message}", file=sys.stderr)
+    return EXIT_BAD_INPUT
+
+
+def _output_file_problem(out: Path, suffixes: tuple[str, ...]) -> str | None:
+    """Why ``out`` cannot take an output file of one of ``suffixes`` (None: it can)."""
+    from executive.core.files import output_dir_problem
+
+    if out.is_dir():
+        return f"--out {out}: is a directory; name the file to write"
+    if suffixes and out.suffix.lower() not in suffixes:
+        return f"--out {out}: the file must end in {' or '.join(suffixes)}"
+    problem = output_dir_problem(out.parent if str(out.parent) else Path("."))
+    return f"--out {out}: {problem}" if problem else None
+
+
 def cmd_sim_view(args: argparse.Namespace) -> int:
+    import math
+
     from sim2d.robot import SimRobot
     from sim2d.view import render_world
 
+    at: float = args.at
+    if not math.isfinite(at) or at < 0:
+        return _bad_argument(f"--at {args.at}: a time in seconds, 0 or more")
+    problem = _output_file_problem(args.out, (".png", ".svg"))
+    if problem:
+        return _bad_argument(problem)
+    problems = check_any(args.scenario)
+    if problems:
+        return _report(problems)
     scenario = load_scenario(args.scenario)
+    if at > scenario.duration:
+        return _bad_argument(f"--at {at:g}: past the scenario's duration ({scenario.duration:g} s)")
     robot = SimRobot(scenario)
-    if args.at > 0:
-        robot.advance(args.at)
+    if at > 0:
+        robot.advance(at)
     out = render_world(robot, args.out)
     print(f"wrote {out}")
     return EXIT_OK
@@ -160,16 +195,96 @@ def _default_scenario(mission: Path) -> Path:
     return mission.resolve().parent / "scenarios" / "clear-apron.xml"
 
 
+SEED_RANGE = (0, 2**32 - 1)
+REPORT_FILES = ("metrics.json", "events.jsonl", "trajectory.png", "timeline.png", "avoidance.png")
+"""What a dry-run writes in its folder besides the journal; removed before a new run."""
+JOURNAL_FILE = "journal.jsonl"
+SIGNALS = ("SIGINT", "SIGTERM", "SIGHUP")
+"""Signals that end a run safely: the robot is sent a stop, the journal is closed with an
+``interrupted`` record, a partial report is written; exit status 128 + the signal."""
+
+
+def _resume_command(args: argparse.Namespace, scenario: Path) -> str:
+    import shlex
+
+    words = ["walkaround", "dry-run", str(args.mission), "--scenario", str(scenario)]
+    words += ["--out", str(args.out), "--rate", f"{args.rate:g}"]
+    if args.seed is not None:
+        words += ["--seed", str(args.seed)]
+    if not args.avoidance:
+        words.append("--no-avoidance")
+    if args.max_time is not None:
+        words += ["--max-time", f"{args.max_time:g}"]
+    return shlex.join([*words, "--resume"])
+
+
+def _check_dry_run_arguments(args: argparse.Namespace) -> str | None:
+    """The first bad argument of a dry-run, before anything is read or written."""
+    import math
+
+    from executive.core.files import output_dir_problem
+
+    if not (math.isfinite(args.rate) and 10.0 <= args.rate <= 50.0):
+        return f"--rate {args.rate:g}: the executive runs at 10 to 50 Hz"
+    if args.seed is not None and not SEED_RANGE[0] <= args.seed <= SEED_RANGE[1]:
+        return f"--seed {args.seed}: a seed is an integer from {SEED_RANGE[0]} to {SEED_RANGE[1]}"
+    if args.max_time is not None and not (math.isfinite(args.max_time) and args.max_time > 0):
+        return f"--max-time {args.max_time}: simulated seconds, more than 0"
+    if args.max_missed_deadlines < 0:
+        return f"--max-missed-deadlines {args.max_missed_deadlines}: 0 (never) or more"
+    problem = output_dir_problem(args.out)
+    if problem:
+        return f"--out {problem}"
+    journal = args.out / JOURNAL_FILE
+    if args.resume and (journal.is_symlink() or not journal.exists()):
+        what = "is a symbolic link" if journal.is_symlink() else "does not exist"
+        return f"--resume: the journal {journal} {what}; nothing to resume"
+    return None
+
+
 def cmd_dry_run(args: argparse.Namespace) -> int:
-    import dataclasses
+    import signal
 
     from executive.compiler import CompileError
+    from executive.journal import JournalWriteError
+    from executive.runtime import StopRequest
+
+    stop = StopRequest()
+
+    def on_signal(signum: int, _frame: object) -> None:
+        stop.set(f"interrupted by {signal.Signals(signum).name}", signum)
+
+    previous = {}
+    for name in SIGNALS:
+        if hasattr(signal, name):
+            sig = getattr(signal, name)
+            previous[sig] = signal.signal(sig, on_signal)
+    try:
+        return _dry_run(args, stop)
+    except InvalidInputError as exc:
+        return _report(list(exc.problems))
+    except CompileError as exc:
+        return _report(list(exc.problems))
+    except JournalWriteError as exc:
+        print(f"walkaround: {exc.strerror or exc}", file=sys.stderr)
+        return EXIT_FAILED
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+def _dry_run(args: argparse.Namespace, stop: StopRequest) -> int:
+    """The body of :func:`cmd_dry_run`, with the signal handlers in place."""
+    import dataclasses
+
+    from executive.core.files import UnusableFileError, describe_os_error, remove_if_present
     from executive.dryrun import dry_run
+    from executive.journal import check_resumable, read_journal
     from executive.report import write_report
 
-    if not 10.0 <= args.rate <= 50.0:
-        print(f"--rate {args.rate:g}: the executive runs at 10 to 50 Hz", file=sys.stderr)
-        return EXIT_BAD_INPUT
+    bad = _check_dry_run_arguments(args)
+    if bad:
+        return _bad_argument(bad)
     mission_path: Path = args.mission
     problems = _check_mission_file(mission_path)
     if problems:
@@ -179,7 +294,8 @@ def cmd_dry_run(args: argparse.Namespace) -> int:
     if problems:
         return _report(problems)
     scenario = load_scenario(scenario_path)
-    if scenario.mission.source != load_mission(mission_path).source:
+    mission = load_mission(mission_path)
+    if scenario.mission.source != mission.source:
         print(
             f"{scenario_path}: this scenario stages mission '{scenario.mission.id}' "
             f"({scenario.mission.source}), not {mission_path}",
@@ -189,33 +305,67 @@ def cmd_dry_run(args: argparse.Namespace) -> int:
     if args.seed is not None:
         scenario = dataclasses.replace(scenario, seed=args.seed)
     out: Path = args.out
-    out.mkdir(parents=True, exist_ok=True)
-    journal = out / "journal.jsonl"
-    if args.resume and not journal.exists():
-        print(f"--resume: no journal at {journal}", file=sys.stderr)
-        return EXIT_BAD_INPUT
+    journal = out / JOURNAL_FILE
+    state = None
+    if args.resume:
+        state = read_journal(journal)  # InvalidInputError: exit 2 at the journal's line
+        check_resumable(state, scenario.mission, journal)
+        if state.ended == "completed":
+            print(
+                f"mission '{mission.id}' already completed at {state.end_t:.1f} s "
+                f"(journal {journal}): nothing to resume, the robot is not moved"
+            )
+            return EXIT_OK
     try:
-        run = dry_run(
-            scenario,
-            rate_hz=args.rate,
-            journal_path=journal,
-            resume=args.resume,
-            progress_out=sys.stderr if not args.quiet else None,
-            avoidance=args.avoidance,
-        )
-    except CompileError as exc:
-        return _report(list(exc.problems))
-    write_report(run, out)
+        out.mkdir(parents=True, exist_ok=True)
+        for name in REPORT_FILES if args.resume else (*REPORT_FILES, JOURNAL_FILE):
+            remove_if_present(out / name)
+    except UnusableFileError as exc:
+        return _bad_argument(str(exc))
+    except OSError as exc:
+        return _bad_argument(f"--out {describe_os_error(exc, out, 'preparing')}")
+    run = dry_run(
+        scenario,
+        rate_hz=args.rate,
+        journal_path=journal,
+        resume=state if state is not None else False,
+        progress_out=sys.stderr if not args.quiet else None,
+        avoidance=args.avoidance,
+        stop=stop,
+        max_missed_deadlines=args.max_missed_deadlines or None,
+        max_time=args.max_time,
+    )
+    report_error = None
+    try:
+        write_report(run, out)
+    except OSError as exc:
+        report_error = describe_os_error(exc, getattr(exc, "filename", None) or out)
     for warning in run.warnings:
         print(f"warning: {warning}", file=sys.stderr)
     reached = sum(c.reached for c in run.checkpoints)
     worst = max((c.position_error or 0.0 for c in run.checkpoints), default=0.0)
+    verdict = "succeeded" if run.succeeded else f"{run.result.outcome}: {run.first_cause}"
     print(
-        f"{run.result.outcome}: {run.result.reason}; {reached}/{len(run.checkpoints)} checkpoints "
+        f"{verdict}; {reached}/{len(run.checkpoints)} checkpoints "
         f"(worst {worst * 100:.1f} cm), {len(run.robot.truth.collisions)} collisions, "
         f"{len(run.breaches)} geofence breaches; {run.robot.time:.0f} s simulated in "
-        f"{run.wall_time:.1f} s; report in {out}"
+        f"{run.wall_time:.1f} s; "
+        + (f"report in {out}" if report_error is None else "no complete report")
     )
+    for problem in (run.journal_error, report_error):
+        if problem:
+            print(f"walkaround: {problem}; the robot was sent a stop", file=sys.stderr)
+    sent_stop = bool(run.last_commands) and run.last_commands[-1][1].v == 0.0
+    if run.result.outcome == "interrupted" or run.journal_error or report_error:
+        print(
+            f"walkaround: run ended ({run.result.reason}); the robot was "
+            f"{'sent a stop' if sent_stop else 'not sent a stop'}; journal {journal}"
+            + (f"; partial report in {out}" if report_error is None else "")
+            + f"; continue with: {_resume_command(args, scenario_path)}",
+            file=sys.stderr,
+        )
+    if run.result.outcome == "interrupted" and stop.signal is not None:
+        return 128 + stop.signal
     return EXIT_OK if run.succeeded else EXIT_FAILED
 
 
@@ -223,6 +373,11 @@ def cmd_show(args: argparse.Namespace) -> int:
     from executive import export
     from executive.compiler import CompileError, compile_mission
 
+    if args.out is not None:
+        suffixes = {"png": (".png",), "svg": (".svg",)}.get(args.format, ())
+        problem = _output_file_problem(args.out, suffixes)
+        if problem:
+            return _bad_argument(problem)
     problems = _check_mission_file(args.mission)
     if problems:
         return _report(problems)
@@ -236,6 +391,7 @@ def cmd_show(args: argparse.Namespace) -> int:
         out = args.out or Path(f"{args.mission.stem}.{fmt}")
         if out.suffix != f".{fmt}":
             out = out.with_suffix(f".{fmt}")
+        out.parent.mkdir(parents=True, exist_ok=True)
         export.render(root, out)
         print(f"wrote {out}")
         return EXIT_OK
@@ -246,7 +402,10 @@ def cmd_show(args: argparse.Namespace) -> int:
     else:
         text = export.to_btcpp(root, keep_running_unselected=args.bt_runnable)
     if args.out is not None:
-        args.out.write_text(text + ("" if text.endswith("\n") else "\n"), encoding="utf-8")
+        from executive.core.files import write_atomic
+
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        write_atomic(args.out, (text + ("" if text.endswith("\n") else "\n")).encode())
         print(f"wrote {args.out}")
     else:
         sys.stdout.write(text + ("" if text.endswith("\n") else "\n"))
@@ -300,8 +459,10 @@ def build_parser() -> argparse.ArgumentParser:
         description="Compile the mission, run it at a fixed rate against sim2d (the "
         "mission's clear-apron scenario unless --scenario is given) and write the report "
         "folder: trajectory.png, timeline.png, metrics.json, events.jsonl, journal.jsonl. "
-        "Exit 0 when the mission succeeded (completed, no collision, no geofence breach), "
-        "1 when it failed, 2 on bad input.",
+        "Exit 0 when the mission succeeded (completed, no collision, no geofence breach, "
+        "every checkpoint within tolerance, every item inspected with a fresh image), "
+        "1 when it failed, 2 on bad input, 128+N when ended by signal N (SIGINT 130, "
+        "SIGTERM 143, SIGHUP 129: the robot is sent a stop, a partial report is written).",
     )
     dry.add_argument("mission", type=Path, metavar="MISSION", help="mission XML")
     dry.add_argument("--scenario", type=Path, default=None, help="scenario XML")
@@ -314,6 +475,21 @@ def build_parser() -> argparse.ArgumentParser:
         help="continue after the last checkpoint completed in OUT/journal.jsonl",
     )
     dry.add_argument("--quiet", action="store_true", help="no live progress line")
+    dry.add_argument(
+        "--max-time",
+        type=float,
+        default=None,
+        metavar="S",
+        help="end the run after S simulated seconds (default: the scenario's duration)",
+    )
+    dry.add_argument(
+        "--max-missed-deadlines",
+        type=int,
+        default=10,
+        metavar="N",
+        help="stop the robot and fail the run after N consecutive missed tick deadlines "
+        "(default 10; 0: never)",
+    )
     dry.add_argument(
         "--avoidance",
         action=argparse.BooleanOptionalAction,
@@ -355,7 +531,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except InvalidInputError as exc:  # a subcommand loading input it did not pre-check
         print(exc.summary(), file=sys.stderr)
         return EXIT_BAD_INPUT
-    except KeyboardInterrupt:
+    except KeyboardInterrupt:  # outside a run (a run handles its signals itself)
         return 130
 
 

@@ -41,9 +41,30 @@ from executive.core.records import (
     SensorFrame,
     VelocityCommand,
 )
-from executive.journal import Journal, read_journal
-from executive.runtime import RunResult, Runtime
-from executive.safety import SafetyLayer
+from executive.journal import (
+    Journal,
+    JournalState,
+    JournalWriteError,
+    MissionBinding,
+    read_journal,
+)
+from executive.runtime import (
+    DEFAULT_MAX_MISSED_DEADLINES,
+    RunResult,
+    Runtime,
+    StopRequest,
+)
+from executive.safety import (
+    ESTOP_LATCHED,
+    ESTOP_RELEASED,
+    ESTOP_RESET,
+    FAULT_STOP,
+    GEOFENCE_CLEAR,
+    GEOFENCE_STOP,
+    SENSOR_FRESH,
+    STALE_SENSOR,
+    SafetyLayer,
+)
 from sim2d.robot import SimRobot
 from sim2d.scenario import Scenario
 
@@ -62,6 +83,13 @@ class SimClock:
     def wait(self, until: float) -> None:
         if until > self.robot.time:
             self.robot.advance(until - self.robot.time)
+
+    @staticmethod
+    def tick_timer() -> float:
+        """What a tick is charged in simulated time: the CPU time of this thread. A
+        machine busy with other work delays the simulation, not the robot; a slow
+        executive still misses its deadlines (on the robot, the wall clock decides)."""
+        return time.thread_time()
 
 
 @dataclass
@@ -141,12 +169,21 @@ class AvoidanceSample:
     clearance: float
 
 
+FEATURE_LOSS_RADIUS = 1.5
+"""Feature loss is counted within this distance (m) of the checkpoint being worked on,
+where its camera should see the target."""
+
 TRACK_MATCH_RADIUS = 1.0
 """A track within this distance (m) of a mover's true centre is taken to be that mover."""
 
 
 @dataclass
 class CheckpointOutcome:
+    """How a checkpoint was really reached (ground truth), and how sure the executive was:
+    ``pose_sigma`` is the estimate's own position uncertainty (m, 1-sigma) then, and
+    ``uncertain`` says it exceeded the checkpoint tolerance. ``resumed``: judged by the
+    run that completed it, before a ``--resume``."""
+
     id: str
     reached: bool
     time: float | None = None
@@ -154,6 +191,39 @@ class CheckpointOutcome:
     heading_error_deg: float | None = None
     items: int = 0
     detected: int = 0
+    pose_sigma: float | None = None
+    uncertain: bool = False
+    resumed: bool = False
+
+
+@dataclass(frozen=True)
+class Cause:
+    """Why a run did not succeed, at the time it happened, in one line."""
+
+    t: float
+    text: str
+
+
+class _CommandLog:
+    """The robot as the runtime sees it, keeping the last commands it was sent: what the
+    report says the robot was told when the run ended (a stop, whatever ended it)."""
+
+    def __init__(self, robot: SimRobot, keep: int = 5) -> None:
+        self.robot = robot
+        self.keep = keep
+        self.sent: list[tuple[float, VelocityCommand]] = []
+
+    def read(self) -> SensorFrame:
+        return self.robot.read()
+
+    def send(self, command: VelocityCommand) -> None:
+        self.robot.send(command)
+        self.sent.append((self.robot.time, command))
+        if len(self.sent) > 4 * self.keep:
+            del self.sent[: -self.keep]
+
+    def last(self) -> list[tuple[float, VelocityCommand]]:
+        return self.sent[-self.keep :]
 
 
 @dataclass
@@ -174,14 +244,20 @@ class DryRun:
     tracks: list[TrackSample] = field(default_factory=list)
     avoidance: list[AvoidanceSample] = field(default_factory=list)
     final_placement: AircraftPlacement | None = None
+    causes: list[Cause] = field(default_factory=list)
+    feature_loss_s: dict[str, float] = field(default_factory=dict)
+    last_commands: list[tuple[float, VelocityCommand]] = field(default_factory=list)
+    journal_error: str | None = None
 
     @property
     def succeeded(self) -> bool:
-        return (
-            self.result.outcome == "completed"
-            and not self.robot.truth.collisions
-            and not self.breaches
-        )
+        """Completed, no collision, no geofence breach, every checkpoint reached within
+        its tolerance and every item inspected with a fresh image: no :attr:`causes`."""
+        return not self.causes
+
+    @property
+    def first_cause(self) -> str | None:
+        return self.causes[0].text if self.causes else None
 
 
 class _Watcher:
@@ -220,6 +296,11 @@ class _Watcher:
         self.tracks: list[TrackSample] = []
         self._registration: RegistrationRecord | None = None
         self.final_placement: AircraftPlacement | None = None
+        self.journal: Journal | None = None
+        self._last_pose: PoseEstimate | None = None
+        self.feature_loss: dict[str, float] = {}
+        self._checkpoints = {c.id: c for c in mission.checkpoints}
+        self._camera_period = {c.id: 1.0 / c.rate_hz for c in mission.platform.cameras.values()}
 
     def footprint(self, pose: Pose2) -> ShapelyPolygon:
         hl, hw = self.half
@@ -239,11 +320,12 @@ class _Watcher:
 
     def __call__(self, t: float, frame: SensorFrame, sent: VelocityCommand, rt: Runtime) -> None:
         progress = rt._get(PROGRESS.name)
+        pose = rt._get(POSE.name)
+        self._last_pose = pose if isinstance(pose, PoseEstimate) else None
         if isinstance(progress, MissionProgress) and progress.completed != self.completed_seen:
             for cp_id in progress.completed[len(self.completed_seen) :]:
                 self._judge_checkpoint(cp_id, t, progress)
             self.completed_seen = progress.completed
-        pose = rt._get(POSE.name)
         world = self.robot.world
         true = world.robot_pose
         if isinstance(pose, PoseEstimate):
@@ -257,6 +339,8 @@ class _Watcher:
             self._judge_localisation(t, pose, true)
         if isinstance(obstacles, Obstacles):
             self._judge_tracks(t, obstacles, true)
+        if isinstance(progress, MissionProgress):
+            self._judge_feature_loss(frame, progress, true)
         foot = self.footprint(true)
         inside = {zid for zid, geom in self.zones if geom.intersects(foot)}
         for zid in inside - self._in_zone:
@@ -395,13 +479,45 @@ class _Watcher:
                     sample.velocity_error = round(math.hypot(vx - mvx, vy - mvy), 4)
             self.tracks.append(sample)
 
+    def _judge_feature_loss(
+        self, frame: SensorFrame, progress: MissionProgress, true: Pose2
+    ) -> None:
+        """Near a checkpoint that names its camera, count the time (at TRUTH_RATE_HZ) that
+        camera had no fresh detection of the checkpoint's features: frozen, dropped out,
+        occluded or out of view all count (ARCHITECTURE §9, feature-loss time)."""
+        cp = self._checkpoints.get(progress.checkpoint or "")
+        if cp is None or cp.camera is None or cp.id in progress.completed:
+            return
+        goal = self.true.pose_to_airport(cp.pose)
+        if math.hypot(goal.x - true.x, goal.y - true.y) > FEATURE_LOSS_RADIUS:
+            return
+        aircraft = self.scenario.mission.aircraft
+        wanted = {aircraft.items[i].feature for i in cp.items if i in aircraft.items}
+        if cp.target is not None:
+            wanted.add(cp.target)
+        limit = 3.0 * self._camera_period.get(cp.camera, 0.1)
+        seen = any(
+            frame.stamp - image.stamp <= limit
+            and any(d.feature in wanted for d in image.detections)
+            for rig, image in frame.cameras.items()
+            if rig == cp.camera or rig.startswith(cp.camera + "-")  # a stereo pair's two rigs
+        )
+        self.feature_loss.setdefault(cp.camera, 0.0)
+        if not seen:
+            self.feature_loss[cp.camera] += 1.0 / TRUTH_RATE_HZ
+
     def _judge_checkpoint(self, cp_id: str, t: float, progress: MissionProgress) -> None:
         mission = self.scenario.mission
-        cp = next(c for c in mission.checkpoints if c.id == cp_id)
+        cp = self._checkpoints[cp_id]
         goal = self.true.pose_to_airport(cp.pose)
         true = self.robot.world.robot_pose
         results = [r for r in progress.results if r.checkpoint == cp_id]
-        self.outcomes[cp_id] = CheckpointOutcome(
+        sigma = None
+        pose = self._last_pose
+        if pose is not None and pose.covariance_f is not None:
+            cov = pose.covariance_f
+            sigma = round(math.sqrt(max(float(cov[0, 0] + cov[1, 1]), 0.0)), 4)
+        outcome = CheckpointOutcome(
             id=cp_id,
             reached=True,
             time=round(t, 2),
@@ -409,7 +525,14 @@ class _Watcher:
             heading_error_deg=round(math.degrees(abs(wrap_angle(goal.theta - true.theta))), 3),
             items=len(results),
             detected=sum(r.detected for r in results),
+            pose_sigma=sigma,
+            uncertain=sigma is not None and sigma > mission.navigation.position_tolerance,
         )
+        self.outcomes[cp_id] = outcome
+        if self.journal is not None:  # kept for the report of a resumed run
+            self.journal.write(
+                {"event": "checkpoint-truth", "checkpoint": cp_id, **dataclasses.asdict(outcome)}
+            )
 
 
 class _Progress:
@@ -449,7 +572,7 @@ def dry_run(
     *,
     rate_hz: float = 50.0,
     journal_path: Path | None = None,
-    resume: bool = False,
+    resume: bool | JournalState = False,
     operator: Callable[[float], OperatorRequests] | None = None,
     progress_out: TextIO | None = None,
     max_time: float | None = None,
@@ -457,17 +580,29 @@ def dry_run(
     avoidance: bool = True,
     avoider: AvoiderFactory | None = None,
     avoidance_params: AvoidanceParams | None = None,
+    stop: StopRequest | None = None,
+    max_missed_deadlines: int | None = DEFAULT_MAX_MISSED_DEADLINES,
 ) -> DryRun:
-    """Run the scenario's mission with the executive in sim2d and judge it."""
+    """Run the scenario's mission with the executive in sim2d and judge it.
+
+    ``resume`` continues the journal at ``journal_path``: True reads it, a
+    :class:`JournalState` is one already read and checked (the CLI reads it before any
+    work, to refuse a bad journal with exit status 2). The robot starts where the last
+    completed checkpoint was reached; the checkpoints completed before keep the outcome
+    judged when they were completed.
+    """
     mission = scenario.mission
-    resumed = None
+    state: JournalState | None = None
+    if isinstance(resume, JournalState):
+        state = resume
+    elif resume and journal_path is not None:
+        state = read_journal(journal_path)
+    resumed = state.progress if state is not None else None
     start = None
-    if resume and journal_path is not None:
-        resumed, pose = read_journal(journal_path)
-        if pose is not None:
-            start = Pose2(*pose)
-            scenario = _with_start(scenario, start)
-    robot = robot or SimRobot(scenario)
+    if state is not None and state.pose_a is not None:
+        start = Pose2(*state.pose_a)
+        scenario = _with_start(scenario, start)
+    sim = robot or SimRobot(scenario)
     options = CompileOptions(
         rate_hz=rate_hz,
         start=start or scenario.start,
@@ -485,48 +620,72 @@ def dry_run(
     )
     journal = None
     if journal_path is not None:
-        journal = Journal(journal_path, mission.id, append=resume)
+        journal = Journal(
+            journal_path,
+            MissionBinding.of(mission),
+            append=state is not None,
+            keep_bytes=state.keep_bytes if state is not None else None,
+        )
         if resumed is not None:
             journal.resume_from(resumed)
+            journal.write({"event": "resume", "t": round(sim.time, 3)})
     avoiders = [n for n in compiled.root.iterate() if isinstance(n, AvoidanceController)]
-    watcher = _Watcher(robot, scenario, avoiders)
+    watcher = _Watcher(sim, scenario, avoiders)
+    watcher.journal = journal
+    if resumed is not None:
+        watcher.completed_seen = resumed.completed
     show = _Progress(progress_out, len(mission.checkpoints))
 
     def on_tick(t: float, frame: SensorFrame, sent: VelocityCommand, rt: Runtime) -> None:
         watcher(t, frame, sent, rt)
         show(t, rt)
 
+    wire = _CommandLog(sim)
     runtime = Runtime(
         compiled,
-        robot,
-        SimClock(robot),
+        wire,
+        SimClock(sim),
         safety,
         rate_hz=rate_hz,
         journal=journal,
         operator=operator,
         on_tick=on_tick,
+        stop=stop,
+        max_missed_deadlines=max_missed_deadlines,
     )
     wall0 = time.perf_counter()
-    result = runtime.run(max_time if max_time is not None else scenario.duration)
+    try:
+        result = runtime.run(max_time if max_time is not None else scenario.duration)
+    finally:
+        show.close()
     wall = time.perf_counter() - wall0
-    show.close()
+    journal_error = None
     if journal is not None:
-        journal.write(
-            {"t": round(robot.time, 3), "event": "mission-end", "outcome": result.outcome}
+        t_end = round(sim.time, 3)
+        end: dict[str, object] = (
+            {"t": t_end, "event": "interrupted", "reason": result.reason}
+            if result.outcome == "interrupted"
+            else {"t": t_end, "event": "mission-end", "outcome": result.outcome}
         )
-        journal.close()
+        try:
+            journal.write(end)
+        except JournalWriteError as exc:
+            journal_error = str(exc)
+        finally:
+            journal.close()
     done = set(resumed.completed) if resumed is not None else set()
+    before = state.truth if state is not None else {}
     outcomes = [
-        watcher.outcomes.get(cp.id, CheckpointOutcome(cp.id, reached=cp.id in done))
+        watcher.outcomes.get(cp.id) or _resumed_outcome(cp.id, cp.id in done, before.get(cp.id))
         for cp in mission.checkpoints
     ]
-    return DryRun(
+    run = DryRun(
         scenario=scenario,
         result=result,
         samples=watcher.samples,
         checkpoints=outcomes,
         breaches=watcher.breaches,
-        robot=robot,
+        robot=sim,
         warnings=[str(w) for w in compiled.warnings],
         wall_time=wall,
         resumed_from=tuple(sorted(done)),
@@ -535,7 +694,141 @@ def dry_run(
         tracks=watcher.tracks,
         avoidance=watcher.avoidance,
         final_placement=watcher.final_placement,
+        feature_loss_s={k: round(v, 2) for k, v in sorted(watcher.feature_loss.items())},
+        last_commands=wire.last(),
+        journal_error=journal_error,
     )
+    run.causes = judge(run)
+    return run
+
+
+def _resumed_outcome(
+    cp_id: str, reached: bool, truth: dict[str, object] | None
+) -> CheckpointOutcome:
+    """A checkpoint this run did not complete: as judged before the resume, if it was."""
+    if not reached:
+        return CheckpointOutcome(cp_id, reached=False)
+    known = {f.name for f in dataclasses.fields(CheckpointOutcome)}
+    fields = {k: v for k, v in (truth or {}).items() if k in known and k != "id"}
+    fields.update(reached=True, resumed=True)
+    return CheckpointOutcome(cp_id, **fields)  # type: ignore[arg-type]
+
+
+STOP_EVENTS = {
+    ESTOP_LATCHED: ESTOP_RELEASED,
+    STALE_SENSOR: SENSOR_FRESH,
+    GEOFENCE_STOP: GEOFENCE_CLEAR,
+}
+"""Safety stops and the events that end them (a fault stop never ends)."""
+
+
+def _active_stop(run: DryRun) -> Cause | None:
+    """The safety stop still holding the robot when the run ended, if any."""
+    active: dict[str, Cause] = {}
+    for event in run.result.events:
+        if event.kind != "safety":
+            continue
+        kind = str(event.detail.get("kind"))
+        reason = str(event.detail.get("reason", ""))
+        if kind == ESTOP_LATCHED:
+            wait = ", waiting for an operator reset" if "bumper" in reason else ""
+            active[kind] = Cause(event.t, f"{reason}: e-stop latched at {event.t:.1f} s{wait}")
+        elif kind in (STALE_SENSOR, GEOFENCE_STOP, FAULT_STOP):
+            active[kind] = Cause(event.t, f"{reason} (robot stopped at {event.t:.1f} s)")
+        elif kind == ESTOP_RESET:
+            active.pop(ESTOP_LATCHED, None)
+        for stop, end in STOP_EVENTS.items():
+            if kind == end:
+                active.pop(stop, None)
+    return min(active.values(), key=lambda c: c.t) if active else None
+
+
+def judge(run: DryRun) -> list[Cause]:
+    """Every reason the run did not succeed, in time order; empty: it succeeded.
+
+    Success means the mission completed, with no collision and no geofence breach,
+    every checkpoint reached within its position and heading tolerances (ground truth),
+    and every item inspected with a fresh image and detected.
+    """
+    causes: list[Cause] = []
+    result = run.result
+    end = run.robot.time
+    if result.outcome != "completed":
+        stop = _active_stop(run) if result.outcome == "timeout" else None
+        if stop is not None:
+            causes.append(stop)
+        elif result.outcome in ("interrupted", "aborted"):
+            causes.append(Cause(end, result.reason))
+        else:
+            causes.append(Cause(end, f"{result.outcome}: {result.reason}"))
+    for c in run.robot.truth.collisions:
+        causes.append(Cause(c.time, f"collision with {c.other} at {c.time:.1f} s"))
+    for t, zone in run.breaches:
+        causes.append(Cause(t, f"geofence breach: the robot entered zone '{zone}' at {t:.1f} s"))
+    nav = run.scenario.mission.navigation
+    for cp in run.checkpoints:
+        if not cp.reached or cp.position_error is None or cp.time is None:
+            continue
+        if cp.position_error > nav.position_tolerance:
+            causes.append(
+                Cause(
+                    cp.time,
+                    f"checkpoint {cp.id} reached {cp.position_error * 100:.0f} cm from its "
+                    f"pose (tolerance {nav.position_tolerance * 100:.0f} cm)"
+                    + (
+                        f", with a pose uncertainty of {cp.pose_sigma * 100:.0f} cm"
+                        if cp.uncertain and cp.pose_sigma is not None
+                        else ""
+                    ),
+                )
+            )
+        heading_tol = math.degrees(nav.heading_tolerance)
+        if cp.heading_error_deg is not None and cp.heading_error_deg > heading_tol:
+            causes.append(
+                Cause(
+                    cp.time,
+                    f"checkpoint {cp.id} reached {cp.heading_error_deg:.1f} deg off its "
+                    f"heading (tolerance {heading_tol:.1f} deg)",
+                )
+            )
+    causes.extend(_item_causes(run))
+    causes.sort(key=lambda c: c.t)
+    return causes
+
+
+def _item_causes(run: DryRun) -> list[Cause]:
+    """Items inspected with a stale image (one cause per camera) or not detected."""
+    causes: list[Cause] = []
+    stale: dict[str, list[object]] = {}
+    for r in run.result.progress.results:
+        if getattr(r, "stale", False):
+            stale.setdefault(r.camera, []).append(r)
+        elif not r.detected:
+            causes.append(
+                Cause(r.stamp, f"item {r.item} not detected at checkpoint {r.checkpoint}")
+            )
+    for camera, items in stale.items():
+        since = _stale_since(run, camera, min(r.stamp for r in items))  # type: ignore[attr-defined]
+        causes.append(
+            Cause(
+                since, f"camera {camera} stale from {since:.1f} s: {len(items)} items not inspected"
+            )
+        )
+    return causes
+
+
+def _stale_since(run: DryRun, camera: str, default: float) -> float:
+    """When the safety layer first reported ``camera`` stale (before ``default``)."""
+    for event in run.result.events:
+        reason = str(event.detail.get("reason", ""))
+        if (
+            event.kind == "safety"
+            and f"'{camera}'" in reason
+            and "stale" in reason
+            and event.t <= default
+        ):
+            return event.t
+    return default
 
 
 def _with_start(scenario: Scenario, start: Pose2) -> Scenario:

@@ -12,11 +12,13 @@
 
 from __future__ import annotations
 
+import io
 import itertools
 import json
 import math
 from dataclasses import asdict
 from pathlib import Path
+from typing import BinaryIO
 
 import matplotlib
 
@@ -24,6 +26,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
+from executive.core.files import write_atomic
 from executive.dryrun import TRUTH_RATE_HZ, DryRun
 from sim2d.view import draw_world
 
@@ -78,6 +81,13 @@ def metrics(run: DryRun) -> dict[str, object]:
         "tick_timing": result.stats.summary(),
         "warnings": run.warnings,
         "resumed_after": list(run.resumed_from),
+        "feature_loss_s": run.feature_loss_s,
+        "causes": [{"t": round(c.t, 2), "cause": c.text} for c in run.causes],
+        "first_cause": run.first_cause,
+        "last_commands": [
+            {"t": round(t, 3), "v": c.v, "omega": c.omega} for t, c in run.last_commands
+        ],
+        "journal_error": run.journal_error,
     }
 
 
@@ -176,16 +186,37 @@ def avoidance_metrics(run: DryRun) -> dict[str, object]:
 
 
 def write_report(run: DryRun, out: Path) -> Path:
-    """Write the report folder; returns its path."""
+    """Write the report folder; returns its path.
+
+    Every file is written whole or not at all (:func:`~executive.core.files.write_atomic`:
+    a temporary file renamed over the target, never through a symbolic link). An
+    :class:`OSError` (a full disk) names the file it was writing.
+    """
     out.mkdir(parents=True, exist_ok=True)
-    (out / "metrics.json").write_text(json.dumps(metrics(run), indent=2) + "\n", encoding="utf-8")
-    with (out / "events.jsonl").open("w", encoding="utf-8") as handle:
-        for event in run.result.events:
-            handle.write(json.dumps(event.as_dict(), separators=(",", ":")) + "\n")
-    trajectory(run, out / "trajectory.png")
-    timeline(run, out / "timeline.png")
-    avoidance_plot(run, out / "avoidance.png")
+    _write(out / "metrics.json", (json.dumps(metrics(run), indent=2) + "\n").encode())
+    _write(
+        out / "events.jsonl",
+        "".join(
+            json.dumps(e.as_dict(), separators=(",", ":")) + "\n" for e in run.result.events
+        ).encode(),
+    )
+    for name, draw in (
+        ("trajectory.png", trajectory),
+        ("timeline.png", timeline),
+        ("avoidance.png", avoidance_plot),
+    ):
+        image = io.BytesIO()
+        if draw(run, image):
+            _write(out / name, image.getvalue())
     return out
+
+
+def _write(path: Path, data: bytes) -> None:
+    try:
+        write_atomic(path, data)
+    except OSError as exc:
+        exc.filename = str(path)
+        raise
 
 
 KINDS = (
@@ -217,7 +248,7 @@ def _controller_colours(run: DryRun) -> dict[str, object]:
     return {name: PALETTE(i % 10) for i, name in enumerate(names)}
 
 
-def trajectory(run: DryRun, path: Path) -> None:
+def trajectory(run: DryRun, path: Path | BinaryIO) -> bool:
     fig, ax = plt.subplots(figsize=(10, 10), dpi=110)
     draw_world(ax, run.robot, scans=False, cameras=False)
     colours = _controller_colours(run)
@@ -258,8 +289,9 @@ def trajectory(run: DryRun, path: Path) -> None:
     )
     ax.grid(True, lw=0.3, alpha=0.5)
     fig.tight_layout()
-    fig.savefig(path)
+    fig.savefig(path, format="png")
     plt.close(fig)
+    return True
 
 
 def _draw_tracks(ax: plt.Axes, run: DryRun) -> None:
@@ -321,7 +353,7 @@ def _draw_registration(ax: plt.Axes, run: DryRun) -> None:
     ax.plot([], [], "D", color="green", mec="black", mew=0.4, ms=5, label="global registration")
 
 
-def timeline(run: DryRun, path: Path) -> None:
+def timeline(run: DryRun, path: Path | BinaryIO) -> bool:
     samples = run.samples
     if not samples:
         return
@@ -360,18 +392,19 @@ def timeline(run: DryRun, path: Path) -> None:
     for ax in axes:
         ax.grid(True, lw=0.3, alpha=0.5)
     fig.tight_layout()
-    fig.savefig(path)
+    fig.savefig(path, format="png")
     plt.close(fig)
+    return True
 
 
-def avoidance_plot(run: DryRun, path: Path) -> None:
+def avoidance_plot(run: DryRun, path: Path | BinaryIO) -> bool:
     """alpha_d, xi, beta_c, e_alpha, e_r (the spiral's, eqs. 4.1-4.16) and the true
     clearance against the time since each avoidance began, one colour per episode;
     velocity-obstacle and planner ticks show in the clearance panel only. No file when
     the run avoided nothing."""
     samples = run.avoidance
     if not samples:
-        return
+        return False
     episodes = sorted({a.episode for a in samples})
     rows = (
         ("alpha_d (deg)", lambda a: math.degrees(a.alpha_d)),
@@ -400,5 +433,6 @@ def avoidance_plot(run: DryRun, path: Path) -> None:
     axes[-1].set_xlabel("time since the avoidance began (s)")
     fig.suptitle("obstacle avoidance episodes (spiral quantities; NaN for VO / planner)")
     fig.tight_layout()
-    fig.savefig(path)
+    fig.savefig(path, format="png")
     plt.close(fig)
+    return True

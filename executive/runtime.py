@@ -3,9 +3,13 @@
 Each period the runtime reads a :class:`SensorFrame`, writes it (and the operator's
 requests, and a zero command) on the blackboard, ticks the tree once, passes the command
 the tree chose through the :class:`~executive.safety.SafetyLayer` — which has the last
-word — and sends the result. A missed deadline is counted; an exception inside a tick
-stops the robot and fails the mission with the traceback. Every switch of controller is
-an event with the guard's reason; mission progress goes to the journal.
+word — and sends the result. A missed deadline is counted, and ``max_missed_deadlines``
+consecutive ones stop the robot and fail the run; an exception inside a tick stops the
+robot and fails the mission with the traceback; a journal that cannot be written (a full
+disk) stops the robot and fails the run with the reason; a stop request
+(:class:`StopRequest`, set by a signal handler) stops the robot and ends the run as
+``interrupted``. Every switch of controller is an event with the guard's reason; mission
+progress goes to the journal.
 """
 
 from __future__ import annotations
@@ -40,7 +44,7 @@ from executive.core.records import (
     VelocityCommand,
 )
 from executive.core.robot import RobotInterface
-from executive.journal import Journal
+from executive.journal import Journal, JournalWriteError
 from executive.safety import SafetyLayer
 
 Status = py_trees.common.Status
@@ -53,8 +57,17 @@ class Clock(Protocol):
 
     def wait(self, until: float) -> None: ...
 
+    def tick_timer(self) -> float:
+        """A clock (s) that measures how long a tick took, against its deadline."""
+        ...
+
 
 class WallClock:
+    """The robot's time: monotonic seconds since the run began."""
+
+    tick_timer = staticmethod(time.perf_counter)
+    """What a tick is charged: the elapsed time (see :meth:`Clock.tick_timer`)."""
+
     def __init__(self) -> None:
         self._t0 = time.monotonic()
 
@@ -65,6 +78,27 @@ class WallClock:
         delay = until - self.now()
         if delay > 0:
             time.sleep(delay)
+
+
+class StopRequest:
+    """A request to end the run at the next tick, safely: set from a signal handler (it
+    only stores the reason) and polled by the loop once per period."""
+
+    def __init__(self) -> None:
+        self.reason: str | None = None
+        self.signal: int | None = None
+
+    def set(self, reason: str, signal: int | None = None) -> None:
+        if self.reason is None:  # the first request is the one the report names
+            self.reason, self.signal = reason, signal
+
+    def __bool__(self) -> bool:
+        return self.reason is not None
+
+
+DEFAULT_MAX_MISSED_DEADLINES = 10
+"""Consecutive missed tick deadlines that stop the robot (ARCHITECTURE §8): at 50 Hz,
+200 ms during which the robot drove on commands computed for an older world."""
 
 
 @dataclass
@@ -104,7 +138,7 @@ class Event:
 
 @dataclass
 class RunResult:
-    outcome: str  # completed | failed | timeout | aborted
+    outcome: str  # completed | failed | timeout | aborted | interrupted
     reason: str
     progress: MissionProgress
     stats: TickStats
@@ -139,6 +173,8 @@ class Runtime:
         journal: Journal | None = None,
         operator: Callable[[float], OperatorRequests] | None = None,
         on_tick: TickHook | None = None,
+        stop: StopRequest | None = None,
+        max_missed_deadlines: int | None = DEFAULT_MAX_MISSED_DEADLINES,
     ) -> None:
         self.compiled = compiled
         self.robot = robot
@@ -148,6 +184,10 @@ class Runtime:
         self.journal = journal
         self.operator = operator or (lambda t: OperatorRequests())
         self.on_tick = on_tick
+        self.stop = stop if stop is not None else StopRequest()
+        self._timer: Callable[[], float] = getattr(clock, "tick_timer", time.perf_counter)
+        self.max_missed_deadlines = max_missed_deadlines
+        self._missed_in_a_row = 0
         self.root = compiled.root
         self.bb = py_trees.blackboard.Client(name="runtime")
         for key in (SENSOR_FRAME, OPERATOR, COMMAND):
@@ -161,6 +201,8 @@ class Runtime:
         self.sent = VelocityCommand.stop()
         self.reference: tuple[str, str] = ("", "")
         self._registration: RegistrationRecord | None = None
+        self.aborted_at: float | None = None
+        """When the operator asked to abort (the tree then holds the robot still)."""
 
     def _get(self, key: str) -> object:
         try:
@@ -207,9 +249,11 @@ class Runtime:
         + safety layer), from the frame read to the command ready, without the robot.
         """
         frame = self.robot.read()
-        t0 = time.perf_counter()
+        t0 = self._timer()
         now = frame.stamp
         operator = self.operator(now)
+        if operator.abort and self.aborted_at is None:
+            self.aborted_at = now
         self.bb.set(SENSOR_FRAME.name, frame, overwrite=True)
         self.bb.set(OPERATOR.name, operator, overwrite=True)
         self.bb.set(COMMAND.name, VelocityCommand.stop(), overwrite=True)
@@ -230,7 +274,9 @@ class Runtime:
         placement = getattr(pose, "placement", None)
         if placement is not None:
             self.safety.set_placement(placement)
-        self.stats.durations.append(time.perf_counter() - t0)
+        duration = self._timer() - t0
+        self.stats.durations.append(duration)
+        self._missed_in_a_row = self._missed_in_a_row + 1 if duration > self.period else 0
         self.robot.send(self.sent)
         self._record(now)
         if self.on_tick is not None:
@@ -309,6 +355,12 @@ class Runtime:
             traceback=trace,
         )
 
+    def _stop_safely(self, now: float, kind: str, reason: str) -> None:
+        """Latch a fault stop in the safety layer, send the robot a stop, log the event."""
+        self.safety.fault(now, reason)
+        self.robot.send(VelocityCommand.stop())
+        self.events.append(Event(now, kind, {"reason": reason}))
+
     def _loop(self, start: float, max_time: float, freeze: bool) -> tuple[str, str, str | None]:
         """The ticks of :meth:`run`: (outcome, reason, traceback of a crashed tick)."""
         outcome, reason, trace = "timeout", f"not finished after {max_time:.0f} s", None
@@ -316,17 +368,37 @@ class Runtime:
             now = self.clock.now()
             if now - start >= max_time:
                 break
+            if self.stop:
+                outcome, reason = "interrupted", f"{self.stop.reason} at {now:.1f} s"
+                self._stop_safely(now, "interrupted", reason)
+                break
             try:
                 status = self.step()
                 if freeze:
                     _freeze_long_lived()
                     freeze = False
+            except JournalWriteError as exc:  # the disk is full: nothing more can be kept
+                outcome, reason = "failed", str(exc)
+                self._stop_safely(now, "fault", reason)
+                break
             except Exception as exc:  # a crashed behaviour: stop safely, say why
                 trace = traceback.format_exc()
-                self.safety.fault(now, f"exception in tick: {exc!r}")
-                self.robot.send(VelocityCommand.stop())
                 outcome, reason = "failed", f"exception in tick: {exc!r}"
-                self.events.append(Event(now, "fault", {"reason": reason}))
+                self._stop_safely(now, "fault", reason)
+                break
+            limit = self.max_missed_deadlines
+            if limit is not None and limit > 0 and self._missed_in_a_row >= limit:
+                outcome = "failed"
+                reason = (
+                    f"{self._missed_in_a_row} consecutive tick deadlines missed "
+                    f"(last tick {self.stats.durations[-1] * 1e3:.1f} ms > "
+                    f"{self.period * 1e3:.1f} ms)"
+                )
+                self._stop_safely(now, "fault", reason)
+                break
+            if self.aborted_at is not None:  # this tick's command was a stop
+                outcome, reason = "aborted", f"aborted by the operator at {self.aborted_at:.1f} s"
+                self.events.append(Event(now, "aborted", {"reason": reason}))
                 break
             if status == Status.SUCCESS:
                 outcome, reason = "completed", "mission completed"

@@ -22,7 +22,7 @@ from executive.core.frames import Pose2
 from executive.core.loader import load_mission
 from executive.core.records import FrameReference, Obstacles, PoseEstimate
 from executive.dryrun import SimClock, dry_run
-from executive.journal import Journal, read_journal
+from executive.journal import Journal, MissionBinding, read_journal
 from executive.runtime import Runtime
 from sim2d.robot import SimRobot
 from tests.conftest import MISSIONS
@@ -172,15 +172,15 @@ def test_an_error_outside_the_tick_still_stops_the_robot_and_unfreezes(tmp_path,
 
 def test_journal_tolerates_a_torn_last_line(tmp_path):
     path = tmp_path / "journal.jsonl"
-    journal = Journal(path, "m")
+    journal = Journal(path, MissionBinding("m", "", "", (("CP1", 0.0, 0.0, 0.0),)))
     result = ItemResult("CP1", "item", 1.0, True, "ptz", 0.1, 0.2, (1.0, 2.0, 0.0))
     journal.record(1.0, MissionProgress("inspection", "CP1", "CP1", ("CP1",), (result,)), (1, 2, 3))
     journal.close()
     with path.open("a") as handle:
         handle.write('{"t": 2.0, "event": "checkpoint-do')  # killed mid-write
-    progress, pose = read_journal(path)
-    assert progress.completed == ("CP1",) and progress.results == (result,)
-    assert pose == (1.0, 2.0, 3.0)
+    state = read_journal(path)
+    assert state.progress.completed == ("CP1",) and state.progress.results == (result,)
+    assert state.pose_a == (1.0, 2.0, 3.0)
 
 
 def test_dry_run_exit_codes(tmp_path, capsys):
