@@ -125,7 +125,7 @@ from behaviours.laws.estop import EStopLatch
 from behaviours.laws.freshness import Freshness
 from behaviours.laws.obstacles import footprint_distances, observable_velocity
 from executive.core.frames import AircraftPlacement, FloatArray
-from executive.core.model import CameraKind, Circle, ForbiddenZone, Frame, Mission, Platform
+from executive.core.model import Circle, ForbiddenZone, Frame, Mission
 from executive.core.records import (
     Obstacles,
     PanTiltRate,
@@ -133,6 +133,7 @@ from executive.core.records import (
     SensorFrame,
     TrackedObstacle,
     VelocityCommand,
+    camera_ids,
 )
 
 # event kinds
@@ -530,14 +531,6 @@ _MISSING = {
 _STOPPING = frozenset({"laser", "wheels", "imu", "pose", "obstacles"})
 """The sensors safe motion depends on: stale -> stop. The others (cameras, pan-tilt
 angles, GPS) only degrade the mission's results."""
-
-
-def camera_ids(platform: Platform, unit: str) -> tuple[str, ...]:
-    """The cameras of platform camera unit ``unit`` as the sensor frame names them: a
-    stereo unit ``<id>-left`` and ``<id>-right``, any other ``<id>``."""
-    if platform.cameras[unit].kind is CameraKind.STEREO:
-        return (f"{unit}-left", f"{unit}-right")
-    return (unit,)
 
 
 # -- the layer ------------------------------------------------------------------------------------

@@ -36,8 +36,9 @@ from executive.core.records import (
     TrackedObstacle,
     VelocityCommand,
     WheelSpeeds,
+    camera_ids,
 )
-from executive.safety import MotionLimits, SafetyLayer, camera_ids
+from executive.safety import MotionLimits, SafetyLayer
 from tests.conftest import SHIPPED_MISSIONS
 
 PERIOD = 0.05

@@ -22,8 +22,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from behaviours.controllers.inspection import InspectItems
-from behaviours.keys import COMMAND, POSE, PROGRESS, SENSOR_FRAME, MissionProgress
+from behaviours.keys import COMMAND, FEATURES, POSE, PROGRESS, SENSOR_FRAME, MissionProgress
 from behaviours.laws.freshness import Freshness
+from behaviours.sensing.features import SenseFeatures
 from executive.core.frames import Pose2, aircraft_from_robot, pan_tilt_towards
 from executive.core.loader import load_mission
 from executive.core.model import Mission
@@ -41,6 +42,7 @@ from executive.core.records import (
     SensorFrame,
     VelocityCommand,
     WheelSpeeds,
+    camera_ids,
 )
 from executive.dryrun import dry_run
 from executive.safety import (
@@ -49,7 +51,6 @@ from executive.safety import (
     SENSOR_RECOVERED,
     STALE_SENSOR,
     SafetyLayer,
-    camera_ids,
 )
 from tests.conftest import SHIPPED_MISSIONS
 from tests.sim2d_helpers import make_scenario
@@ -345,6 +346,32 @@ def test_property_health_and_stop_follow_the_age_of_each_sensor(delays):
         assert (out.v == 0.0) == stopped or any(
             abs(now - feed.held[k] - feed.layer.sensor_health[k].limit) <= 1e-9 for k in lag
         )
+
+
+# -- features from fresh images only ---------------------------------------------------------------
+def test_features_leave_out_a_frozen_camera_and_name_it():
+    py_trees.blackboard.Blackboard.clear()
+    m = load_mission(SHIPPED_MISSIONS["lab"])
+    node = SenseFeatures(m.platform)
+    assert node.limits["front-left"] == pytest.approx(3.0 / m.platform.cameras["front"].rate_hz)
+    bb = py_trees.blackboard.Client(name="test")
+    bb.register_key(key=SENSOR_FRAME.name, access=py_trees.common.Access.WRITE)
+    bb.register_key(key=FEATURES.name, access=py_trees.common.Access.READ)
+    frozen = (Detection("target-1", 0, 10.0, 20.0),)
+    seen = []
+    for k in range(10):
+        t = 0.04 * k
+        live = (Detection("target-1", 0, 10.0 + 0.1 * k, 20.0),)
+        images = {"ptz": CameraFrame(t, live), "front-left": CameraFrame(t, frozen)}
+        frame = SensorFrame(t, cameras=images)
+        bb.set(SENSOR_FRAME.name, frame, overwrite=True)
+        node.tick_once()
+        seen.append(bb.get(FEATURES.name))
+    assert all(obs.by_camera["ptz"] for obs in seen)
+    # fresh until its first image is older than three periods, then left out and named
+    assert [("front-left" in obs.by_camera) for obs in seen] == [True] * 4 + [False] * 6
+    assert all(obs.stale == ("front-left",) for obs in seen[4:])
+    assert not seen[-1].visible("target-1", "front")
 
 
 # -- the inspection counts fresh images only ------------------------------------------------------

@@ -21,6 +21,7 @@ from types import MappingProxyType
 import numpy as np
 
 from executive.core.frames import AircraftPlacement, FloatArray, Pose2
+from executive.core.model import CameraKind, Platform
 
 _EMPTY: Mapping = MappingProxyType({})
 
@@ -138,6 +139,14 @@ class SensorFrame:
     imu: ImuReading | None = None
     gps: GpsFix | None = None
     bumpers: Bumpers = field(default_factory=lambda: Bumpers(0.0))
+
+
+def camera_ids(platform: Platform, unit: str) -> tuple[str, ...]:
+    """The cameras of platform camera unit ``unit`` as :attr:`SensorFrame.cameras` names
+    them: ``<unit>-left`` and ``<unit>-right`` for a stereo unit, ``<unit>`` otherwise."""
+    if platform.cameras[unit].kind is CameraKind.STEREO:
+        return (f"{unit}-left", f"{unit}-right")
+    return (unit,)
 
 
 @dataclass(frozen=True, slots=True)
@@ -311,10 +320,16 @@ class Obstacles:
 
 @dataclass(frozen=True, slots=True)
 class FeatureObservations:
-    """Feature points seen by each camera at ``stamp``: camera id -> detections."""
+    """Feature points seen by each camera at ``stamp``: camera id -> detections.
+
+    Only fresh images are in ``by_camera``; ``stale`` names the cameras whose image is
+    stale (no new image, or the same one repeated, for longer than their limit): what
+    they show is not evidence of anything now.
+    """
 
     stamp: float
     by_camera: Mapping[str, tuple[Detection, ...]] = _empty()
+    stale: tuple[str, ...] = ()
 
     def visible(self, feature: str, camera_prefix: str = "") -> bool:
         return any(
