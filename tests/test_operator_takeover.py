@@ -414,6 +414,8 @@ def _assert_resumed_mission(run: DryRun, tmp_path: Path) -> None:
     phases = [r["phase"] for r in records if r.get("event") == "phase"]
     assert len(phases) == len(set(phases)), phases  # no phase entered twice
     assert all(c.reached for c in run.checkpoints)
+    # within tolerance, every item detected with a fresh image: the run succeeds (exit 0)
+    assert run.succeeded, run.first_cause
 
 
 def _assert_held_still(run: DryRun, windows: list[tuple[float, float]]) -> None:
@@ -436,6 +438,11 @@ def test_take_over_mid_leg_after_a_checkpoint_resumes_with_the_next(scenario, tm
     assert not {"go to P", "go to CP1", "inspect CP1"} & set(after)
     speeds = [s.v for s in run.samples if start - 1.0 <= s.t < start]
     assert max(speeds) > 0.1  # it was really moving when taken over
+    # the report says so: completed, succeeded, each checkpoint and item once
+    metrics = json.loads((write_report(run, tmp_path / "report") / "metrics.json").read_text())
+    assert metrics["outcome"] == "completed" and metrics["succeeded"]
+    assert [c["id"] for c in metrics["checkpoints"]] == list(CHECKPOINTS)
+    assert metrics["checkpoints_reached"] == 3 and metrics["items_inspected"] == 5
 
 
 @pytest.mark.slow
@@ -510,7 +517,7 @@ def _assert_aborted(run: DryRun, operator: Operator, tmp_path: Path) -> float:
     out = write_report(run, tmp_path / "report")
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["outcome"] == "aborted"
-    assert not run.succeeded
+    assert not run.succeeded and run.first_cause == result.reason  # the one-line summary
     return t
 
 
