@@ -476,6 +476,49 @@ def test_take_over_mid_inspection_re_reaches_the_checkpoint_and_inspects_the_res
     assert cp2.items == 2
 
 
+class JoystickRobot(RecordingRobot):
+    """The operator drives the robot while it has it: during ``windows`` the robot gets
+    ``drive`` instead of what the executive sent (manual control at the robot's seam)."""
+
+    def __init__(self, scenario: Scenario, operator: Operator, drive: VelocityCommand) -> None:
+        super().__init__(scenario)
+        self.operator = operator
+        self.drive = drive
+
+    def send(self, command: VelocityCommand) -> None:
+        manual = any(a <= self.time < b for a, b in self.operator.windows)
+        super().send(self.drive if manual else command)
+
+
+@pytest.mark.slow
+def test_a_checkpoint_left_during_a_take_over_is_reached_again(scenario, tmp_path):
+    """The operator drives the robot away mid-inspection: after the hand-back the robot
+    goes back to the checkpoint before it inspects the remaining item."""
+
+    def first_cp2_item_recorded(p: MissionProgress) -> bool:
+        return [r.item for r in p.results if r.checkpoint == "CP2"] == [ITEMS["CP2"][0]]
+
+    operator = Operator(first_cp2_item_recorded, hold=4.0)
+    # reverse, turning: away from the fence (the checkpoint faces it)
+    robot = JoystickRobot(scenario, operator, VelocityCommand(-0.3, 0.2))
+    run = dry_run(
+        scenario,
+        operator=operator,
+        journal_path=tmp_path / "journal.jsonl",
+        robot=robot,
+        max_time=200.0,
+    )
+    _assert_resumed_mission(run, tmp_path)
+    ((start, end),) = operator.windows
+    assert _moved(run, start, end) > 0.6  # really driven away
+    assert _controllers(run, start)[:3] == ["operator control", "go to CP2", "inspect CP2"]
+    cp = next(c for c in run.scenario.mission.checkpoints if c.id == "CP2")
+    second = next(r for r in run.result.progress.results if r.item == ITEMS["CP2"][1])
+    assert math.hypot(second.pose_f[0] - cp.pose.x, second.pose_f[1] - cp.pose.y) < 0.15
+    outcome = next(c for c in run.checkpoints if c.id == "CP2")
+    assert outcome.time is not None and outcome.time > end  # judged when really done
+
+
 @pytest.mark.slow
 def test_repeated_take_overs_never_repeat_a_checkpoint(scenario, tmp_path):
     operator = Operator(lambda p: True, hold=2.0, times=6, gap=9.0)
