@@ -330,6 +330,7 @@ class Operator:
         self.after, self.delay = after, delay
         self._since: float | None = None
         self.windows: list[tuple[float, float]] = []
+        self.phases: list[str] = []  # the mission's phase at each take-over
         self.aborted_at: float | None = None
 
     def __call__(self, t: float) -> OperatorRequests:
@@ -345,6 +346,7 @@ class Operator:
                 self.aborted_at = t
                 return OperatorRequests(abort=True)
             self.windows.append((t, t + self.hold))
+            self.phases.append(_progress().phase)
             self._since = None
             return OperatorRequests(take_over=True)
         return OperatorRequests()
@@ -521,13 +523,14 @@ def test_a_checkpoint_left_during_a_take_over_is_reached_again(scenario, tmp_pat
 
 @pytest.mark.slow
 def test_repeated_take_overs_never_repeat_a_checkpoint(scenario, tmp_path):
-    operator = Operator(lambda p: True, hold=2.0, times=6, gap=9.0)
+    operator = Operator(lambda p: True, hold=2.0, times=8, gap=9.0)
     run = _dry_run(scenario, operator, tmp_path)
-    assert len(operator.windows) == 6
+    assert len(operator.windows) == 8
+    assert {"approach", "inspection", "return"} <= set(operator.phases)  # in every phase
     _assert_resumed_mission(run, tmp_path)
     _assert_held_still(run, operator.windows)
     taken = [e for e in run.result.events if e.kind == "controller"]
-    assert sum(e.detail["to"] == "operator control" for e in taken) == 6
+    assert sum(e.detail["to"] == "operator control" for e in taken) == 8
 
 
 def _assert_aborted(run: DryRun, operator: Operator, tmp_path: Path) -> float:
