@@ -344,7 +344,7 @@ def _dry_run(args: argparse.Namespace, stop: StopRequest) -> int:
         print(f"warning: {warning}", file=sys.stderr)
     reached = sum(c.reached for c in run.checkpoints)
     worst = max((c.position_error or 0.0 for c in run.checkpoints), default=0.0)
-    verdict = "succeeded" if run.succeeded else f"{run.result.outcome}: {run.first_cause}"
+    verdict = "succeeded" if run.succeeded else f"failed: {run.first_cause}"
     print(
         f"{verdict}; {reached}/{len(run.checkpoints)} checkpoints "
         f"(worst {worst * 100:.1f} cm), {len(run.robot.truth.collisions)} collisions, "

@@ -64,6 +64,7 @@ from executive.safety import (
     SENSOR_FRESH,
     STALE_SENSOR,
     SafetyLayer,
+    StaleInterval,
 )
 from sim2d.robot import SimRobot
 from sim2d.scenario import Scenario
@@ -248,6 +249,7 @@ class DryRun:
     feature_loss_s: dict[str, float] = field(default_factory=dict)
     last_commands: list[tuple[float, VelocityCommand]] = field(default_factory=list)
     journal_error: str | None = None
+    stale_sensors: dict[str, tuple[StaleInterval, ...]] = field(default_factory=dict)
 
     @property
     def succeeded(self) -> bool:
@@ -697,6 +699,7 @@ def dry_run(
         feature_loss_s={k: round(v, 2) for k, v in sorted(watcher.feature_loss.items())},
         last_commands=wire.last(),
         journal_error=journal_error,
+        stale_sensors=safety.stale_intervals(),
     )
     run.causes = judge(run)
     return run
@@ -808,27 +811,33 @@ def _item_causes(run: DryRun) -> list[Cause]:
                 Cause(r.stamp, f"item {r.item} not detected at checkpoint {r.checkpoint}")
             )
     for camera, items in stale.items():
-        since = _stale_since(run, camera, min(r.stamp for r in items))  # type: ignore[attr-defined]
+        since, what = _stale_source(run, camera, min(r.stamp for r in items))  # type: ignore[attr-defined]
         causes.append(
-            Cause(
-                since, f"camera {camera} stale from {since:.1f} s: {len(items)} items not inspected"
-            )
+            Cause(since, f"{what} stale from {since:.1f} s: {len(items)} items not inspected")
         )
     return causes
 
 
-def _stale_since(run: DryRun, camera: str, default: float) -> float:
-    """When the safety layer first reported ``camera`` stale (before ``default``)."""
-    for event in run.result.events:
-        reason = str(event.detail.get("reason", ""))
-        if (
-            event.kind == "safety"
-            and f"'{camera}'" in reason
-            and "stale" in reason
-            and event.t <= default
-        ):
-            return event.t
-    return default
+def _stale_source(run: DryRun, camera: str, stamp: float) -> tuple[float, str]:
+    """When and what went stale for an item inspected at ``stamp`` with ``camera``: the
+    camera's images, else its pan-tilt unit's angles."""
+    for key, what in (
+        (f"camera:{camera}", f"camera {camera}"),
+        (f"ptu:{camera}", f"pan-tilt unit {camera} angles"),
+    ):
+        since = _stale_since(run.stale_sensors.get(key, ()), stamp)
+        if since is not None:
+            return since, what
+    return stamp, f"camera {camera}"
+
+
+def _stale_since(intervals: Sequence[StaleInterval], stamp: float) -> float | None:
+    """When the stale stretch that covers ``stamp`` began (None: no stretch covers it)."""
+    for interval in intervals:
+        start = interval.since if interval.since is not None else interval.detected
+        if start <= stamp and (interval.until is None or stamp <= interval.until):
+            return start
+    return None
 
 
 def _with_start(scenario: Scenario, start: Pose2) -> Scenario:

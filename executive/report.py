@@ -82,6 +82,19 @@ def metrics(run: DryRun) -> dict[str, object]:
         "warnings": run.warnings,
         "resumed_after": list(run.resumed_from),
         "feature_loss_s": run.feature_loss_s,
+        "stale_sensors": {
+            sensor: [
+                {
+                    "since": i.since,
+                    "detected": round(i.detected, 3),
+                    "until": i.until,
+                    "reason": i.reason,
+                }
+                for i in intervals
+            ]
+            for sensor, intervals in run.stale_sensors.items()
+            if intervals
+        },
         "causes": [{"t": round(c.t, 2), "cause": c.text} for c in run.causes],
         "first_cause": run.first_cause,
         "last_commands": [
