@@ -488,6 +488,60 @@ def test_stale_pan_tilt_angles_are_not_aimed_with():
     assert not result.detected and result.stale
 
 
+frame_kinds = st.sampled_from(["repeat", "live-item", "live-other", "stuck", "none"])
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.lists(frame_kinds, min_size=1, max_size=40))
+def test_property_an_item_is_detected_iff_a_fresh_image_after_the_aim_shows_it(kinds):
+    """Any sequence of camera frames (a repeat of the previous image with a new stamp, a
+    live image with or without the item, the same frame again, no frame), the first one
+    possibly an image from before the node started: the item is detected exactly at the
+    first image that is new (later stamp, other content than the previous image the node
+    saw; the first image it sees is only a reference), stamped after the aim, and shows
+    the item."""
+    run = Inspection()
+    previous: CameraFrame | None = CameraFrame(-0.04, run.seen(-5.0))  # before the node
+    expected: float | None = None
+    shown: CameraFrame | None = None
+    first_stamp: float | None = None
+    for k, kind in enumerate(kinds):
+        t = run.t
+        if kind == "repeat":
+            image = CameraFrame(t, previous.detections if previous else ())
+        elif kind == "live-item":
+            image = CameraFrame(t, run.seen(t))
+        elif kind == "live-other":
+            image = CameraFrame(t, (Detection("elsewhere", 0, 5.0 + t, 5.0),))
+        elif kind == "stuck":  # the same frame again, stamp and all
+            image = previous
+        else:
+            image = None
+        if image is not None:
+            new = (
+                shown is not None
+                and image.stamp > shown.stamp
+                and (not image.detections or image.detections != shown.detections)
+            )
+            if shown is None:
+                first_stamp = image.stamp
+            aimed = k > 0 or image.stamp > 0.0  # aimed at the first tick (t = 0)
+            if new and aimed and image.stamp > 0.0 and kind == "live-item" and expected is None:
+                expected = t
+            shown = image
+            previous = image
+        if expected is None or expected == t:
+            run.tick(image)
+    results = run.results()
+    detected = [r for r in results if r.detected]
+    if expected is None:
+        assert not detected
+    else:
+        assert len(detected) == 1 and detected[0].stamp == pytest.approx(expected)
+        assert not detected[0].stale
+    assert first_stamp is None or all(r.stamp >= 0.0 for r in results)
+
+
 # -- end to end -----------------------------------------------------------------------------------
 @pytest.mark.slow
 def test_dry_run_with_the_ptz_frozen_before_the_second_checkpoint(tmp_path):

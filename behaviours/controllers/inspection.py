@@ -122,12 +122,14 @@ class InspectItems(Controller):
         if self._item_start is None:
             self._item_start, self._aimed_at, self._seen = now, None, False
             self._fresh_images, self._blind, self._was_aimed = 0, False, False
-        # every camera's freshness is followed on every tick, aimed or not
-        fresh_images = {
-            cid: self._images[cid].observe(cam.stamp, cam.detections or None)
-            for cid, cam in frame.cameras.items()
-            if cid in self._images
-        }
+        # every camera's freshness is followed on every tick, aimed or not; the first
+        # image a camera shows the node is only a reference: it may be a frozen one
+        fresh_images = {}
+        for cid, cam in frame.cameras.items():
+            if cid in self._images:
+                known = self._images[cid].last_stamp is not None
+                new = self._images[cid].observe(cam.stamp, cam.detections or None)
+                fresh_images[cid] = known and new
         angles = frame.pan_tilt.get(self.unit.id)
         if angles is not None:
             self._angles.observe(angles.stamp)
