@@ -195,6 +195,23 @@ def _wait_for(journal: Path, needle: str, process: subprocess.Popen, limit: floa
     raise AssertionError(f"{needle} never journaled (exit {process.poll()})")
 
 
+def _process(*argv: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, *argv], capture_output=True, text=True, timeout=300, cwd=REPO, check=False
+    )
+
+
+def _resume(out: Path) -> subprocess.CompletedProcess:
+    return _process(
+        "-m", "executive.cli", "dry-run", str(LAB), "--out", str(out), "--quiet", "--resume"
+    )
+
+
+def _completed(journal: Path) -> list[str]:
+    records = map(json.loads, journal.read_text().splitlines())
+    return [r["checkpoint"] for r in records if r["event"] == "checkpoint-done"]
+
+
 @pytest.mark.parametrize(("name", "status"), [("SIGTERM", 143), ("SIGINT", 130), ("SIGHUP", 129)])
 def test_a_signal_mid_run_stops_the_robot_and_leaves_a_resumable_run(tmp_path, name, status):
     out = tmp_path / "run"
@@ -220,31 +237,9 @@ def test_a_signal_mid_run_stops_the_robot_and_leaves_a_resumable_run(tmp_path, n
     assert (out / "trajectory.png").exists()
     if name != "SIGTERM":
         return
-    resumed = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "executive.cli",
-            "dry-run",
-            str(LAB),
-            "--out",
-            str(out),
-            "--quiet",
-            "--resume",
-        ],
-        capture_output=True,
-        text=True,
-        timeout=300,
-        cwd=REPO,
-        check=False,
-    )
+    resumed = _resume(out)
     assert resumed.returncode == 0, resumed.stdout + resumed.stderr
-    done = [
-        r["checkpoint"]
-        for r in map(json.loads, (out / "journal.jsonl").open())
-        if r["event"] == "checkpoint-done"
-    ]
-    assert done == ["CP1", "CP2", "CP3"]
+    assert _completed(out / "journal.jsonl") == ["CP1", "CP2", "CP3"]
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["succeeded"] and metrics["resumed_after"]
     assert all(c["position_error"] is not None for c in metrics["checkpoints"])
@@ -269,24 +264,7 @@ sys.exit(main(sys.argv[2:]))
 
 def test_a_full_disk_mid_run_stops_the_robot_and_resume_completes(tmp_path):
     out = tmp_path / "run"
-    first = subprocess.run(
-        [
-            sys.executable,
-            "-c",
-            FULL_DISK,
-            "1400",
-            "dry-run",
-            str(LAB),
-            "--out",
-            str(out),
-            "--quiet",
-        ],
-        capture_output=True,
-        text=True,
-        timeout=300,
-        cwd=REPO,
-        check=False,
-    )
+    first = _process("-c", FULL_DISK, "1400", "dry-run", str(LAB), "--out", str(out), "--quiet")
     assert first.returncode == 1, first.stdout + first.stderr
     assert "Traceback" not in first.stderr
     assert "disk full while writing" in first.stdout + first.stderr
@@ -299,29 +277,9 @@ def test_a_full_disk_mid_run_stops_the_robot_and_resume_completes(tmp_path):
     # The disk is full for the report too: no report file half-written, none left behind.
     assert not (out / "metrics.json").exists()
     assert not [p for p in out.iterdir() if p.name.endswith(".tmp")]
-    second = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "executive.cli",
-            "dry-run",
-            str(LAB),
-            "--out",
-            str(out),
-            "--quiet",
-            "--resume",
-        ],
-        capture_output=True,
-        text=True,
-        timeout=300,
-        cwd=REPO,
-        check=False,
-    )
+    second = _resume(out)
     assert second.returncode == 0, second.stdout + second.stderr
-    done = [
-        r["checkpoint"] for r in map(json.loads, journal.open()) if r["event"] == "checkpoint-done"
-    ]
-    assert done == ["CP1", "CP2", "CP3"]
+    assert _completed(journal) == ["CP1", "CP2", "CP3"]
 
 
 def test_a_full_disk_for_the_report_is_said_and_nothing_is_half_written(
