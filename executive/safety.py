@@ -811,8 +811,7 @@ class SafetyLayer:
         for lid, scan in frame.scans.items():
             readings[f"laser:{lid}"] = (scan.stamp, None, "has no scan")
         for cam_id, image in frame.cameras.items():
-            content = image.detections or None
-            readings[f"camera:{cam_id}"] = (image.stamp, content, "no image")
+            readings[f"camera:{cam_id}"] = (image.stamp, image.content, "no image")
         for uid, angles in frame.pan_tilt.items():
             readings[f"ptu:{uid}"] = (angles.stamp, None, "no angles")
         for key, reading in (("wheels", frame.wheels), ("imu", frame.imu), ("gps", frame.gps)):

@@ -5,7 +5,8 @@ rate on the simulated clock (lasers 40 Hz, cameras 25 Hz as the platform says; w
 50 Hz, IMU 100 Hz, GPS as the scenario says), applies the scenario's faults, and keeps the
 latest reading of each for :meth:`read`. A frozen sensor (laser dropout, wheel, IMU or
 pan-tilt freeze) keeps its last reading with its old stamp, as a driver that stopped
-publishing would; a frozen camera goes on publishing its last image with fresh stamps.
+publishing would; a frozen camera goes on publishing its last image (same image id, see
+:class:`~executive.core.records.CameraFrame`) with fresh stamps.
 The runtime calls :meth:`send` with a command and :meth:`advance` to let simulated time
 pass.
 
@@ -16,6 +17,7 @@ for byte, for the same scenario and seed.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 from collections.abc import Callable
@@ -121,6 +123,7 @@ class SimRobot:
         self._imu: ImuReading | None = None
         self._gps: GpsFix | None = None
         self._angles: dict[str, PanTilt] = {}  # the last published pan-tilt angles
+        self._exposures: dict[str, int] = {}  # images captured per camera: their ids
         self._logged_collisions = 0
         self._opened: list[IO[str]] = []
         self._truth_out = self._open_log(truth_log)
@@ -200,8 +203,10 @@ class SimRobot:
             unit = self.units[rig.unit]
             if rig.id in frozen and rig.id in self._cameras:
                 # A frozen camera keeps publishing its last image with fresh stamps.
-                frame = CameraFrame(t, self._cameras[rig.id].detections)
+                last = self._cameras[rig.id]
+                frame = CameraFrame(t, last.detections, last.image)
             else:
+                self._exposures[rig.id] = self._exposures.get(rig.id, 0) + 1
                 frame = detect(
                     rig,
                     unit.pan,
@@ -214,6 +219,7 @@ class SimRobot:
                     occluded=self._occlusion_test(),
                     stamp=t,
                 )
+                frame = dataclasses.replace(frame, image=self._exposures[rig.id])
             self._cameras[rig.id] = frame
             if self._sensor_out is not None:
                 seen = [

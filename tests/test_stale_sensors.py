@@ -275,6 +275,25 @@ def test_a_camera_that_sees_nothing_is_not_taken_for_a_frozen_one():
     assert not feed.events()
 
 
+def test_a_camera_frozen_on_an_empty_image_is_caught_by_its_image_id():
+    """Seeing nothing is no evidence by itself, but an image id that repeats is."""
+    feed = Feed()
+    shots: dict[str, int] = {}  # images captured per camera: their ids
+
+    def image(camera: str) -> CameraFrame:
+        if camera not in feed.repeat:
+            shots[camera] = shots.get(camera, 0) + 1
+        return CameraFrame(feed.stamp(f"camera:{camera}"), (), shots[camera])
+
+    feed.image = image  # type: ignore[method-assign]
+    feed.run(1.0)
+    assert not feed.events()
+    feed.repeat["ptz"] = 0.98
+    feed.run(0.5)
+    [(kind, reason)] = feed.events()
+    assert kind == SENSOR_DEGRADED and reason.startswith("camera 'ptz' stale from 0.98 s")
+
+
 def test_a_stale_pan_tilt_unit_is_not_driven_blind():
     feed = Feed()
     feed.run(0.5)
@@ -439,6 +458,16 @@ def test_a_frozen_camera_showing_the_item_from_before_the_checkpoint_does_not_co
     [result] = run.results()
     assert not result.detected and result.stale
     assert result.stamp == pytest.approx(run.node.item_timeout, abs=0.05)
+
+
+def test_a_camera_frozen_on_an_image_without_the_item_is_recorded_stale():
+    """A frozen image that shows nothing: its repeated image id gives it away, so the
+    item is recorded stale (not merely not seen)."""
+    run = Inspection()
+    for _ in range(round(run.node.item_timeout / 0.04) + 2):
+        run.tick(CameraFrame(run.t, (), 7))
+    [result] = run.results()
+    assert not result.detected and result.stale
 
 
 def test_a_live_camera_showing_the_item_counts_at_once():

@@ -128,7 +128,7 @@ class InspectItems(Controller):
         for cid, cam in frame.cameras.items():
             if cid in self._images:
                 known = self._images[cid].last_stamp is not None
-                new = self._images[cid].observe(cam.stamp, cam.detections or None)
+                new = self._images[cid].observe(cam.stamp, cam.content)
                 fresh_images[cid] = known and new
         angles = frame.pan_tilt.get(self.unit.id)
         if angles is not None:

@@ -52,7 +52,7 @@ class SenseFeatures(Node):
             if fresh is None:
                 limit = self.limits.get(cid, DEFAULT_STALE_AFTER)
                 fresh = self._fresh[cid] = Freshness(limit, repeats_are_stale=True)
-            fresh.observe(cam.stamp, cam.detections or None)
+            fresh.observe(cam.stamp, cam.content)
             if fresh.stale(now):
                 stale.append(cid)
             else:

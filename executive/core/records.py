@@ -13,7 +13,7 @@ coordinates (u right, v down) in the camera's output image.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Hashable, Mapping
 from dataclasses import dataclass, field
 from enum import IntEnum, StrEnum
 from types import MappingProxyType
@@ -67,10 +67,25 @@ class Detection:
 
 @dataclass(frozen=True, slots=True)
 class CameraFrame:
-    """The detections of one camera image taken at ``stamp``."""
+    """The detections of one camera image taken at ``stamp``.
+
+    ``image`` identifies the captured image when the camera says (an exposure counter or
+    a checksum of the pixels): a live camera never delivers the same image twice, a
+    frozen pipeline repeats it, whatever stamp it puts on it. None: not known.
+    """
 
     stamp: float
     detections: tuple[Detection, ...] = ()
+    image: int | None = None
+
+    @property
+    def content(self) -> Hashable | None:
+        """What tells this image from the previous one, for freshness: its identity and
+        detections; without an identity its detections, None when there are none (a
+        camera that sees nothing is no evidence of a frozen one)."""
+        if self.image is not None:
+            return (self.image, self.detections)
+        return self.detections or None
 
 
 @dataclass(frozen=True, slots=True)
