@@ -367,7 +367,7 @@ def _build(doc: XmlDocument, sink: ProblemSink, path: Path, root_dir: Path) -> S
     scenario = Scenario(
         id=r.str_(root, "id"),
         mission=mission,
-        seed=int(r.str_(root, "seed")),
+        seed=r.integer(root, "seed"),
         duration=r.num(root, "duration", 3600.0),
         parking_offset=offset,
         start=start,

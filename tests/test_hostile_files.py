@@ -22,10 +22,12 @@ import pytest
 import executive.cli as cli
 from executive.core.problems import (
     MAX_FILE_BYTES,
+    MAX_PROBLEMS,
     Problem,
     SourceLocation,
     source_line,
 )
+from executive.core.xmlsafe import MAX_ELEMENTS
 
 LIBRARY = Path(__file__).parent / "corpus" / "library"
 BASE = LIBRARY / "base"
@@ -218,3 +220,48 @@ def test_an_internal_error_in_the_summary_is_a_problem_too(monkeypatch, capsys) 
     out = capsys.readouterr().out
     assert out.count('"code": "internal-error"') == 2
     assert "Traceback" not in out
+
+
+def test_long_digit_strings_within_range_load(tmp_path: Path) -> None:
+    """``seed="000...07"`` is 7: no 4300-digit limit of int() turns it into a crash."""
+    base = _library_copy(tmp_path)
+    text = (base / "scenario.xml").read_text(encoding="utf-8")
+    long_seed = text.replace('seed="7"', 'seed="+' + "0" * 5000 + '7"')
+    long_count = long_seed.replace('count="3"', 'count="' + "0" * 5000 + '3"')
+    (base / "scenario.xml").write_text(long_count, encoding="utf-8")
+    run = _validate(base / "scenario.xml")
+    assert run.returncode == 0, run.stdout + run.stderr
+    assert "seed 7" in run.stdout
+
+
+def _many_checkpoints(tmp_path: Path, count: int, heading: str) -> Path:
+    """The base mission with ``count`` more (identical) checkpoints."""
+    base = _library_copy(tmp_path)
+    text = (base / "mission.xml").read_text(encoding="utf-8")
+    extra = f'<checkpoint id="c" x="1" y="1" heading-deg="{heading}"/>\n' * count
+    (base / "mission.xml").write_text(text.replace("<inspection>", "<inspection>" + extra))
+    return base / "mission.xml"
+
+
+def test_too_many_elements_are_refused_before_the_schema(tmp_path: Path) -> None:
+    run = _validate(_many_checkpoints(tmp_path, MAX_ELEMENTS, "0"))
+    assert run.returncode == 2
+    assert f"elements; the limit is {MAX_ELEMENTS}" in run.stdout
+    assert "[too-many-elements]" in run.stdout and "Traceback" not in run.stderr
+
+
+@pytest.mark.parametrize(
+    ("heading", "last"),
+    [
+        ("400", "more schema problems not shown"),  # 9000 schema errors
+        ("0", f"more than {MAX_PROBLEMS} problems: the rest are not listed"),  # duplicates
+    ],
+)
+def test_thousands_of_mistakes_are_listed_up_to_a_bound(
+    tmp_path: Path, heading: str, last: str
+) -> None:
+    """Locating and printing every mistake of a hostile file would take minutes."""
+    run = _validate(_many_checkpoints(tmp_path, 9000, heading))
+    assert run.returncode == 2, run.stderr
+    assert last in run.stdout
+    assert run.stdout.count(": error: ") <= MAX_PROBLEMS + 1

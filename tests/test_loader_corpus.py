@@ -429,6 +429,13 @@ CASES: list[Case] = [
     Case("mission-dwell-1e9.xml", 42, 55, "schema", "between 0 and 3600 s"),
     Case("aircraft-origin-height-1e6.xml", 2, 61, "schema", "between 0.1 and 30 m"),
     Case("aircraft-point-1e308.xml", 8, 14, "schema", "between -100 and 100 m"),
+    Case(
+        "aircraft-polygon-repeated-point.xml",
+        7,
+        5,
+        "invalid-polygon",
+        "polygon 'main-gear-left': point 4 repeats point 3 at (18.2, 4.5)",
+    ),
     Case("aircraft-footprint-too-wide.xml", 5, 3, "footprint-extent", "spans 13.6 m x 92.9 m"),
     Case("scenario-group-million.xml", 20, 48, "schema", "'1000000' is out of range"),
     Case("scenario-physics-rate-1e9.xml", 7, 12, "schema", "between 50 and 1000 Hz"),

@@ -18,6 +18,9 @@ MAX_FILE_BYTES = 4 * 1024 * 1024
 """Largest accepted input file; real missions are a few tens of kilobytes. Every read of
 an input file (parsing, printing its offending line) stops after this many bytes."""
 
+MAX_PROBLEMS = 100
+"""Problems listed per file; further ones are counted, not listed."""
+
 MAX_SHOWN_LINE = 200
 """Longest source line printed under a problem (characters)."""
 
@@ -87,9 +90,27 @@ class ProblemSink:
     def __init__(self, file: Path | str) -> None:
         self.file = str(file)
         self.problems: list[Problem] = []
+        self.listed = 0  # problems of this file itself (not of files it refers to)
+        self.dropped = 0
 
     def add(self, code: str, message: str, line: int = 0, column: int = 0) -> None:
-        """Record a problem at ``line``/``column`` of this sink's file."""
+        """Record a problem at ``line``/``column`` of this sink's file.
+
+        After :data:`MAX_PROBLEMS` problems the rest are only counted: a hostile file
+        with ten thousand mistakes gets a readable report, in bounded time.
+        """
+        if self.listed >= MAX_PROBLEMS:
+            if not self.dropped:
+                self.problems.append(
+                    Problem(
+                        SourceLocation(self.file, line, column),
+                        "too-many-problems",
+                        f"more than {MAX_PROBLEMS} problems: the rest are not listed",
+                    )
+                )
+            self.dropped += 1
+            return
+        self.listed += 1
         self.problems.append(Problem(SourceLocation(self.file, line, column), code, message))
 
     def extend(self, problems: Iterable[Problem]) -> None:

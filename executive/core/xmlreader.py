@@ -7,6 +7,7 @@ problems at the element or attribute they concern.
 
 from __future__ import annotations
 
+import itertools
 import math
 import stat
 from collections.abc import Callable, Iterable
@@ -44,6 +45,30 @@ def display_path(path: Path) -> str:
 
 def local_name(element: etree._Element) -> str:
     return etree.QName(element).localname
+
+
+MIN_VERTEX_GAP = 1e-3
+"""Metres between two vertices of a polygon: closer ones are the same point (a ring that
+touches itself, which the simulator's ray caster refuses)."""
+
+
+def _repeated_vertex(points: tuple[tuple[float, float], ...]) -> str | None:
+    """Why a ring repeats a vertex (its closing point aside), or None."""
+    ring = list(points)
+    if len(ring) > 3 and math.dist(ring[0], ring[-1]) < MIN_VERTEX_GAP:
+        ring.pop()  # an explicitly closed ring
+    cells: dict[tuple[int, int], list[int]] = {}  # a millimetre grid: O(n), not O(n^2)
+    for k, (x, y) in enumerate(ring):
+        cx, cy = math.floor(x / MIN_VERTEX_GAP), math.floor(y / MIN_VERTEX_GAP)
+        for dx, dy in itertools.product((-1, 0, 1), repeat=2):
+            for j in cells.get((cx + dx, cy + dy), ()):
+                if math.dist(ring[j], (x, y)) < MIN_VERTEX_GAP:
+                    return (
+                        f"point {k + 1} repeats point {j + 1} at ({x:g}, {y:g}); points "
+                        f"must be at least {MIN_VERTEX_GAP * 1000:g} mm apart"
+                    )
+        cells.setdefault((cx, cy), []).append(k)
+    return None
 
 
 class ElementReader:
@@ -100,6 +125,16 @@ class ElementReader:
             )
         return value
 
+    def integer(self, element: etree._Element, name: str) -> int:
+        """A whole number the XSD has checked (range included), read without Python's
+        limit on long digit strings: leading zeros (``000...07``) are dropped first."""
+        raw = self.str_(element, name).lstrip("+")
+        digits = raw.lstrip("-").lstrip("0") or "0"
+        if len(digits) > 40 or not digits.isdigit():  # the XSD bounds every integer
+            self.problem(element, "not-a-number", f"'{name}' is not a whole number", name)
+            return 0
+        return -int(digits) if raw.startswith("-") else int(digits)
+
     def opt_num(self, element: etree._Element, name: str) -> float | None:
         return None if element.get(name) is None else self.num(element, name)
 
@@ -139,7 +174,7 @@ class ElementReader:
         points = tuple(
             (self.num(p, "x"), self.num(p, "y")) for p in self.children(element, "point")
         )
-        reason = polygon_problem(points)
+        reason = polygon_problem(points) or _repeated_vertex(points)
         if reason:
             self.problem(element, "invalid-polygon", f"polygon '{pid}': {reason}")
         return Polygon(pid, points)

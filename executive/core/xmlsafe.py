@@ -33,6 +33,13 @@ __all__ = ["MAX_DEPTH", "MAX_FILE_BYTES", "XmlDocument", "parse_bytes", "parse_x
 MAX_DEPTH = 32
 """Deepest accepted element nesting; the formats need fewer than 8 levels."""
 
+MAX_ELEMENTS = 10_000
+"""Most elements in one file: the biggest shipped file (an A320 aircraft) has about 400.
+Every later stage (XSD, geometry, the simulator) is linear or worse in this number."""
+
+MAX_SCHEMA_PROBLEMS = 50
+"""Schema problems reported per file; the rest are counted in one last problem."""
+
 _DOCTYPE = re.compile(r"<!DOCTYPE", re.IGNORECASE)
 _NS_BRACES = re.compile(r"\{[^}'\s]*\}")  # {namespace-uri}, not {'a', 'b'} sets
 
@@ -59,6 +66,9 @@ class XmlDocument:
     root: etree._Element
     text: str
     _line_starts: list[int] = field(default_factory=list, repr=False)
+    _by_tag_line: dict[tuple[str, int], list[etree._Element]] | None = field(
+        default=None, repr=False
+    )
 
     def __post_init__(self) -> None:
         starts = [0]
@@ -88,8 +98,13 @@ class XmlDocument:
             return None
         name = etree.QName(element).localname
         pattern = re.compile(r"<(?:[A-Za-z_][\w.\-]*:)?" + re.escape(name) + r"(?=[\s/>])")
-        # The nth element of that name whose start tag ends on this line.
-        same_line = [e for e in element.getroottree().iter(element.tag) if e.sourceline == line]
+        # The nth element of that name whose start tag ends on this line (an index built
+        # once: locating every problem of a big file stays linear).
+        if self._by_tag_line is None:
+            self._by_tag_line = {}
+            for e in self.root.iter(etree.Element):
+                self._by_tag_line.setdefault((e.tag, e.sourceline or 0), []).append(e)
+        same_line = self._by_tag_line.get((element.tag, line), [])
         nth = same_line.index(element) if element in same_line else 0
         end = self._offset(line + 1)
         # Search backwards line by line for a start tag that can end on `line`.
@@ -259,6 +274,16 @@ def parse_bytes(data: bytes, path: Path, sink: ProblemSink) -> XmlDocument | Non
     doc = XmlDocument(path=path, display=sink.file, root=root, text=text)
     if root.getroottree().docinfo.doctype:  # unreachable after the text scan; kept as a guard
         sink.add("doctype", "DOCTYPE declarations are not allowed", *doc.locate(root))
+        return None
+    count = sum(1 for _ in root.iter())
+    if count > MAX_ELEMENTS:
+        sink.add(
+            "too-many-elements",
+            f"the file has {count} elements; the limit is {MAX_ELEMENTS} (walkaround files "
+            "have a few hundred)",
+            1,
+            1,
+        )
         return None
     deep = _first_too_deep(root)
     if deep is not None:
@@ -568,7 +593,17 @@ def validate_against(doc: XmlDocument, xsd_path: Path, sink: ProblemSink) -> boo
     tree = doc.root.getroottree()
     seen: set[tuple[int, int]] = set()
     ranges = attribute_ranges(xsd_path)
-    for entry in schema.error_log:
+    entries = list(schema.error_log)
+    for n, entry in enumerate(entries):
+        if len(seen) >= MAX_SCHEMA_PROBLEMS:
+            sink.add(
+                "schema",
+                f"{len(entries) - n} more schema problems not shown (the first "
+                f"{MAX_SCHEMA_PROBLEMS} are listed)",
+                entry.line,
+                0,
+            )
+            break
         message, attribute = _plain_schema_message(entry.message)
         message = _range_message(entry.message, ranges) or message
         message = _LONG_QUOTED.sub(_shorten, message)
