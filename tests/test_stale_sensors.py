@@ -424,7 +424,9 @@ class Inspection:
         self.bb.set(PROGRESS.name, MissionProgress(), overwrite=True)
         self.t = 0.0
 
-    def tick(self, image: CameraFrame | None, angles_stamp: float | None = None) -> None:
+    def tick(
+        self, image: CameraFrame | None, angles_stamp: float | None = None, angles: bool = True
+    ) -> None:
         """One tick at ``self.t`` with the unit on its aim; none once the node succeeded
         (the mission's sequence does not tick a finished child again)."""
         if self.node.status == py_trees.common.Status.SUCCESS:
@@ -434,7 +436,7 @@ class Inspection:
         frame = SensorFrame(
             self.t,
             cameras={"ptz": image} if image is not None else {},
-            pan_tilt={"ptz": PanTilt(stamp, pan, tilt)},
+            pan_tilt={"ptz": PanTilt(stamp, pan, tilt)} if angles else {},
         )
         self.bb.set(SENSOR_FRAME.name, frame, overwrite=True)
         self.bb.set(POSE.name, dataclasses.replace(self.pose, stamp=self.t), overwrite=True)
@@ -508,10 +510,11 @@ def test_a_live_camera_not_seeing_the_item_is_not_stale():
     assert result.stamp <= run.node.look_time + 0.1
 
 
-def test_stale_pan_tilt_angles_are_not_aimed_with():
+@pytest.mark.parametrize("angles", ["stale", "missing"])
+def test_stale_pan_tilt_angles_are_not_aimed_with(angles):
     run = Inspection()
     for _ in range(round(run.node.item_timeout / 0.04) + 2):
-        run.tick(CameraFrame(run.t, run.seen(run.t)), angles_stamp=-1.0)
+        run.tick(CameraFrame(run.t, run.seen(run.t)), angles_stamp=-1.0, angles=angles == "stale")
         assert run.bb.get(COMMAND.name).pan_tilt.get("ptz", PanTiltRate()) == PanTiltRate()
     [result] = run.results()
     assert not result.detected and result.stale

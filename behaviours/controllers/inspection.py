@@ -133,7 +133,7 @@ class InspectItems(Controller):
         angles = frame.pan_tilt.get(self.unit.id)
         if angles is not None:
             self._angles.observe(angles.stamp)
-        if angles is not None and self._angles.stale(now):
+        if angles is None or self._angles.stale(now):  # where the camera looks is unknown
             angles, self._blind, self._aimed_at = None, True, None
         rate = PanTiltRate()
         if pose is not None and angles is not None:
