@@ -265,3 +265,38 @@ def test_thousands_of_mistakes_are_listed_up_to_a_bound(
     assert run.returncode == 2, run.stderr
     assert last in run.stdout
     assert run.stdout.count(": error: ") <= MAX_PROBLEMS + 1
+
+
+@pytest.mark.parametrize("special", ["fifo", "/dev/zero"])
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["dry-run", "{input}", "--out", "{tmp}/out"],
+        ["dry-run", str(REPO / "missions/track/straight-run.xml"), "--scenario", "{input}"],
+        ["show", "{input}"],
+        ["sim-view", "{input}", "--out", "{tmp}/world.png"],
+    ],
+    ids=["dry-run-mission", "dry-run-scenario", "show", "sim-view"],
+)
+def test_every_command_refuses_special_inputs_at_once(
+    tmp_path: Path, special: str, command: list[str]
+) -> None:
+    """Every subcommand reads its XML through the same front end: no command blocks."""
+    source = special
+    if special == "fifo":
+        source = str(_fifo(tmp_path))
+    args = [a.format(input=source, tmp=tmp_path) for a in command]
+    if args[0] == "dry-run" and "--out" not in args:
+        args += ["--out", str(tmp_path / "out")]
+    run = subprocess.run(
+        [sys.executable, "-m", "executive.cli", *args],
+        capture_output=True,
+        text=True,
+        timeout=HANG,
+        cwd=REPO,
+        preexec_fn=_memory_limit,
+        check=False,
+    )
+    assert run.returncode == 2, run.stdout + run.stderr
+    assert "Traceback" not in run.stdout + run.stderr
+    assert "not a regular XML file [not-a-file]" in run.stderr
