@@ -472,7 +472,7 @@ class _Builder:
             children=[
                 Localise(start, m.platform.track, self.placement, self.registrar()),
                 SenseObstacles(m.platform, m.airport.zones, m.safety.r_oa_trigger),
-                SenseFeatures(),
+                SenseFeatures(m.platform),
             ],
         )
         resume = self.options.resume

@@ -40,6 +40,7 @@ from executive.core.records import (
     RegistrationRecord,
     SensorFrame,
     VelocityCommand,
+    camera_ids,
 )
 from executive.journal import (
     Journal,
@@ -303,6 +304,7 @@ class _Watcher:
         self.feature_loss: dict[str, float] = {}
         self._checkpoints = {c.id: c for c in mission.checkpoints}
         self._camera_period = {c.id: 1.0 / c.rate_hz for c in mission.platform.cameras.values()}
+        self._rigs = {unit: camera_ids(mission.platform, unit) for unit in mission.platform.cameras}
 
     def footprint(self, pose: Pose2) -> ShapelyPolygon:
         hl, hw = self.half
@@ -502,7 +504,7 @@ class _Watcher:
             frame.stamp - image.stamp <= limit
             and any(d.feature in wanted for d in image.detections)
             for rig, image in frame.cameras.items()
-            if rig == cp.camera or rig.startswith(cp.camera + "-")  # a stereo pair's two rigs
+            if rig in self._rigs.get(cp.camera, ())
         )
         self.feature_loss.setdefault(cp.camera, 0.0)
         if not seen:
@@ -821,10 +823,11 @@ def _item_causes(run: DryRun) -> list[Cause]:
 def _stale_source(run: DryRun, camera: str, stamp: float) -> tuple[float, str]:
     """When and what went stale for an item inspected at ``stamp`` with ``camera``: the
     camera's images, else its pan-tilt unit's angles."""
-    for key, what in (
-        (f"camera:{camera}", f"camera {camera}"),
-        (f"ptu:{camera}", f"pan-tilt unit {camera} angles"),
-    ):
+    platform = run.scenario.mission.platform
+    rigs = camera_ids(platform, camera) if camera in platform.cameras else (camera,)
+    sources = [(f"camera:{rig}", f"camera {rig}") for rig in rigs]
+    sources.append((f"ptu:{camera}", f"pan-tilt unit {camera} angles"))
+    for key, what in sources:
         since = _stale_since(run.stale_sensors.get(key, ()), stamp)
         if since is not None:
             return since, what
