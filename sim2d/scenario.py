@@ -450,16 +450,23 @@ def _check_overlaps(r: ElementReader, scenario: Scenario, obstacle_el: list) -> 
     for shape in scenario.mission.aircraft.footprint:
         pts = placement.to_airport_xy(to_shapely(shape).exterior.coords)
         footprint.append((shape.id, to_shapely(Polygon(shape.id, tuple(map(tuple, pts))))))
-    half_diag = scenario.mission.platform.turning_radius
+    platform = scenario.mission.platform
+    half_diag = platform.turning_radius
+    body = Body(length=platform.length, width=platform.width)
     start, station = scenario.start, scenario.mission.airport.station
-    spots = [("the robot's start", Point(start.x, start.y).buffer(half_diag))]
+    poses = [("the robot's start", start)]
     if math.hypot(start.x - station.x, start.y - station.y) > 1e-6:
-        spots.append(("the charging station", Point(station.x, station.y).buffer(half_diag)))
+        poses.append(("the charging station", station))
+    # obstacles: the disc the robot sweeps turning on the spot there (they may come
+    # closer than the aircraft, whose clearance the mission checks); the aircraft: the
+    # robot's own outline at the pose (a test may start it just beside a gear leg)
+    spots = [(label, Point(pose.x, pose.y).buffer(half_diag)) for label, pose in poses]
+    outlines = [(label, to_shapely(body.polygon(pose))) for label, pose in poses]
     offset_el = r.child(r.doc.root, "parking-offset")
     aircraft_el = offset_el if offset_el is not None else r.doc.root
     for shape_id, poly in footprint:
-        for label, disc in spots:
-            if poly.intersects(disc):
+        for label, outline in outlines:
+            if poly.intersects(outline):
                 r.problem(
                     aircraft_el,
                     "aircraft-overlap",

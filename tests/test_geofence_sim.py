@@ -18,6 +18,7 @@ from shapely.geometry import Polygon as ShapelyPolygon
 
 from behaviours.laws.obstacles import closest_obstacle, scan_to_robot
 from executive.core.frames import Pose2
+from executive.core.problems import InvalidInputError
 from executive.core.records import Obstacles, PoseEstimate, VelocityCommand
 from executive.safety import SafetyLayer
 from sim2d.robot import SimRobot
@@ -67,7 +68,10 @@ def test_random_runs_never_enter_a_forbidden_zone(zone_index, bearing, distance,
         if any(foot.distance(z) < mission.safety.geofence_margin + 0.05 for z in zones):
             return  # the draw starts too close: not a valid start
         body = f'<start x="{start.x}" y="{start.y}" heading-deg="{math.degrees(heading)}"/>'
-        robot = SimRobot(make_scenario(Path(tmp), body, name="p.xml"))
+        try:
+            robot = SimRobot(make_scenario(Path(tmp), body, name="p.xml"))
+        except InvalidInputError:  # the loader refuses a start inside the aircraft
+            return
         if robot.truth.collisions:
             return
         safety = SafetyLayer(mission, placement, 1.0 / RATE)
