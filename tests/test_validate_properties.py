@@ -355,3 +355,44 @@ def test_what_validate_accepts_can_be_dry_run(library, worker, change):
             answer = worker.run(scenario)
             event(f"dry-run {answer['status']}")
             assert answer["status"] in (0, 2), answer["outcome"]
+
+
+# -- every numeric attribute has a range --------------------------------------------------------
+NUMERIC_BASES = {"xs:double", "xs:decimal", "xs:integer", "xs:positiveInteger"}
+NUMERIC_BASES |= {"xs:nonNegativeInteger", "xs:float", "xs:int", "xs:long"}
+
+
+@pytest.mark.parametrize("kind", ["aircraft", "mission", "scenario"])
+def test_every_numeric_attribute_has_a_physical_range(kind: str) -> None:
+    """The XSDs are the one table of ranges: a numeric attribute without both bounds (a
+    new attribute typed finiteDouble, say) fails here, named."""
+    from lxml import etree
+
+    xs = "{http://www.w3.org/2001/XMLSchema}"
+    root = etree.parse(str(schema_path(kind))).getroot()
+    simple = {t.get("name"): t for t in root.iter(f"{xs}simpleType")}
+
+    def numeric(type_name: str) -> bool:
+        while type_name in simple:
+            restriction = simple[type_name].find(f"{xs}restriction")
+            if restriction is None:
+                return False
+            type_name = restriction.get("base", "")
+        return type_name in NUMERIC_BASES
+
+    ranges = attribute_ranges(schema_path(kind))
+    missing = []
+    for complex_type in root.iter(f"{xs}complexType"):
+        for attribute in complex_type.iter(f"{xs}attribute"):
+            if not numeric(attribute.get("type", "")):
+                continue
+            elements = [
+                e.get("name")
+                for e in root.iter(f"{xs}element")
+                if e.get("type") == complex_type.get("name")
+            ]
+            for element in elements:
+                wanted = ranges.get((element, attribute.get("name")))
+                if wanted is None or max(abs(wanted.low), abs(wanted.high)) > 1e12:
+                    missing.append(f"<{element}> {attribute.get('name')}")
+    assert not missing, f"numeric attributes without a physical range: {missing}"
