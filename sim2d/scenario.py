@@ -222,7 +222,10 @@ class Scenario:
 
 def default_library_root(scenario_path: Path) -> Path:
     """``<library>/<type>/scenarios/<name>.xml`` -> ``<library>``."""
-    return scenario_path.resolve().parent.parent.parent
+    try:
+        return scenario_path.resolve().parent.parent.parent
+    except (OSError, RuntimeError):  # a symbolic link loop: reported when the file is read
+        return scenario_path.absolute().parent.parent.parent
 
 
 def load_scenario(path: Path | str, library_root: Path | str | None = None) -> Scenario:

@@ -300,3 +300,19 @@ def test_every_command_refuses_special_inputs_at_once(
     assert run.returncode == 2, run.stdout + run.stderr
     assert "Traceback" not in run.stdout + run.stderr
     assert "not a regular XML file [not-a-file]" in run.stderr
+
+
+def test_symbolic_link_loops_are_problems_not_crashes(tmp_path: Path) -> None:
+    """A file, or a file reference, that is a symbolic link loop."""
+    base = _library_copy(tmp_path)
+    (base / "aircraft.xml").unlink()
+    (base / "aircraft.xml").symlink_to(base / "aircraft.xml")
+    loop = tmp_path / "loop.xml"
+    loop.symlink_to(loop)
+    run = _validate(loop, base / "mission.xml")
+    assert run.returncode == 2, run.stdout + run.stderr
+    assert "Traceback" not in run.stdout + run.stderr
+    assert f"FAIL  {loop}: 1 problem(s)" in run.stdout
+    assert "[unreadable]" in run.stdout
+    assert "aircraft path 'aircraft.xml' cannot be resolved" in run.stdout
+    assert "0 valid, 2 invalid" in run.stdout

@@ -222,7 +222,10 @@ def _check_footprint_extent(
 # -- mission ---------------------------------------------------------------------------------------
 def default_library_root(mission_path: Path) -> Path:
     """The mission library a mission file belongs to: ``<root>/<type>/<mission>.xml``."""
-    return mission_path.resolve().parent.parent
+    try:
+        return mission_path.resolve().parent.parent
+    except (OSError, RuntimeError):  # a symbolic link loop: reported when the file is read
+        return mission_path.absolute().parent.parent
 
 
 def load_mission(path: Path | str, library_root: Path | str | None = None) -> Mission:
