@@ -1,10 +1,9 @@
 """Reading and writing files the way a robot's executive must: never blocking on a FIFO,
 never reading without a bound, never writing half a file or through a symbolic link.
 
-* :func:`read_regular` opens without blocking (``O_NONBLOCK``: a FIFO with no writer
-  would otherwise hang the open), checks that what it opened is a regular file, and reads
-  at most ``limit`` bytes: a larger file is refused after ``limit + 1`` bytes, whatever
-  its size claims.
+* :func:`read_regular` reads a regular file (never blocking on a FIFO: see
+  :func:`~executive.core.problems.open_regular`) and at most ``limit`` bytes of it: a
+  larger file is refused after ``limit + 1`` bytes, whatever its size claims.
 * :func:`write_atomic` writes a temporary file beside the target (created exclusively,
   never following a link) and renames it over the target: a reader sees the old file or
   the new one, never a torn one, and a symbolic link at the target is replaced, not
@@ -23,6 +22,8 @@ import stat
 import tempfile
 from pathlib import Path
 
+from executive.core.problems import NotRegularFileError, open_regular
+
 PSEUDO_FILESYSTEMS = ("/proc", "/sys", "/dev")
 """Trees whose entries are not files: never a place for a report."""
 
@@ -38,51 +39,26 @@ def describe_os_error(exc: OSError, path: Path | str, doing: str = "writing") ->
     return f"cannot {doing.removesuffix('ing')} {path}: {exc.strerror or exc}"
 
 
-def _kind(mode: int) -> str:
-    if stat.S_ISDIR(mode):
-        return "a directory"
-    if stat.S_ISFIFO(mode):
-        return "a FIFO"
-    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
-        return "a device"
-    if stat.S_ISSOCK(mode):
-        return "a socket"
-    return "not a regular file"
-
-
 def read_regular(path: Path | str, limit: int) -> bytes:
     """The content of the regular file at ``path``, at most ``limit`` bytes.
 
-    Raises :class:`UnusableFileError` for a missing file, a directory, FIFO, device or socket,
-    a file larger than ``limit``, or an OS error; returns at once in every case.
+    Opened with :func:`~executive.core.problems.open_regular` (never blocking, checked
+    on the open descriptor). Raises :class:`UnusableFileError` for a missing file, a
+    directory, FIFO, device or socket, a file larger than ``limit``, or an OS error;
+    returns at once in every case.
     """
     try:
-        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+        with open_regular(path) as handle:
+            data = handle.read(limit + 1)
     except FileNotFoundError:
         raise UnusableFileError(f"{path}: file not found") from None
-    except IsADirectoryError:
-        raise UnusableFileError(f"{path}: is a directory, not a file") from None
-    except OSError as exc:
-        raise UnusableFileError(f"{path}: cannot open: {exc.strerror or exc}") from None
-    try:
-        mode = os.fstat(fd).st_mode
-        if not stat.S_ISREG(mode):
-            raise UnusableFileError(f"{path}: is {_kind(mode)}, not a regular file")
-        chunks: list[bytes] = []
-        size = 0
-        while size <= limit:
-            chunk = os.read(fd, min(1 << 20, limit + 1 - size))
-            if not chunk:
-                break
-            chunks.append(chunk)
-            size += len(chunk)
-        if size > limit:
-            raise UnusableFileError(f"{path}: larger than the {limit} bytes allowed")
-        return b"".join(chunks)
+    except NotRegularFileError as exc:
+        raise UnusableFileError(f"{path}: is {exc.strerror}, not a regular file") from None
     except OSError as exc:
         raise UnusableFileError(f"{path}: cannot read: {exc.strerror or exc}") from None
-    finally:
-        os.close(fd)
+    if len(data) > limit:
+        raise UnusableFileError(f"{path}: larger than the {limit} bytes allowed")
+    return data
 
 
 def write_atomic(path: Path, data: bytes) -> None:
