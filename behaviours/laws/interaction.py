@@ -23,11 +23,16 @@ general the rotation is measured against the desired camera frame, as in Chaumet
 Hutchinson 2006, the thesis's reference). Its interaction matrix (eq. 3.35)::
 
     L = [[-I3, [c_t_O]x], [0, L_theta_u]]
-    L_theta_u = I3 - theta/2 [u]x + (1 - sinc(theta) / sinc^2(theta/2)) [u]x^2   (eq. 3.34)
+    L_theta_u = I3 + theta/2 [u]x + (1 - sinc(theta) / sinc^2(theta/2)) [u]x^2   (eq. 3.34)
 
-The extracted eq. 3.34 writes ``sinc alpha / sinc^2 (alpha/2)`` with sinc(x) = sin(x)/x;
-the tests check it against finite differences. ``L_theta_u u = u``, so the rotation part
-of PBVS turns about a fixed axis with ``theta(t) = theta_0 exp(-lambda t)``.
+with sinc(x) = sin(x)/x. The extracted eq. 3.34 prints ``I3 - alpha/2 r^ + ...``: that
+sign belongs to the opposite rotation ``cRc*`` (Malis's convention, which the thesis
+cites), whose derivative also carries an overall minus (``d(theta u)/dt = -(I - theta/2
+[u]x + ...) omega``); the printed pair mixes the two. For ``theta u`` of ``c*Rc`` (ours,
+ViSP's ``vpFeatureThetaU::cdRc``), ``c*Rc(t + dt) = c*Rc(t) exp([omega dt]x)`` and the
+derivative is the inverse right Jacobian of SO(3), with ``+ theta/2``: the tests check it
+against finite differences. ``L_theta_u u = u`` either way, so the rotation part of PBVS
+turns about a fixed axis with ``theta(t) = theta_0 exp(-lambda t)``.
 """
 
 from __future__ import annotations
@@ -157,7 +162,7 @@ def l_theta_u_eq_3_34(theta_u: ArrayLike) -> FloatArray:
         return np.eye(3)
     u_x = skew(tu / theta)
     coeff = 1.0 - _sinc(theta) / _sinc(0.5 * theta) ** 2
-    return np.eye(3) - 0.5 * theta * u_x + coeff * (u_x @ u_x)
+    return np.eye(3) + 0.5 * theta * u_x + coeff * (u_x @ u_x)
 
 
 def pbvs_interaction_matrix_eq_3_35(c_t_o: ArrayLike, theta_u: ArrayLike) -> FloatArray:

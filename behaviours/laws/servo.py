@@ -28,7 +28,8 @@ With the choices of the best peer, ViSP's ``vpServo`` (read in its source, 3.x):
 
 :class:`VisualServo` strings them together with the only state the law needs (the task
 switch's ``e1(0)`` and velocity, and the last command); it is cheap enough to call every
-tick (a step for 4 points and 4 DoF is ~0.05 ms, BENCHMARKS.md). Features, interaction
+tick (one IBVS step for 4 points and 4 DoF, Jacobian included, costs ~0.08 ms; PBVS with
+solvePnP ~0.25 ms: `python benchmarks/bench_servo.py --step-timing`). Features, interaction
 matrices and Jacobians come from :mod:`behaviours.laws.interaction` and
 :mod:`behaviours.laws.robot_jacobian`; a free-flying camera uses ``cJq = I6``.
 """

@@ -58,10 +58,10 @@ def theta_u_from_rotation(rotation: ArrayLike) -> FloatArray:
     antisymmetric part still carries; at exactly pi either sign is the same rotation.
     """
     r = np.asarray(rotation, dtype=float)
-    cos_t = min(1.0, max(-1.0, 0.5 * (float(np.trace(r)) - 1.0)))
-    theta = math.acos(cos_t)
+    cos_t = 0.5 * (float(np.trace(r)) - 1.0)
     w = 0.5 * np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
-    sin_t = math.sin(theta)
+    sin_t = float(np.linalg.norm(w))
+    theta = math.atan2(sin_t, cos_t)  # acos would lose half the digits near 0 and pi
     if theta < 1e-8:
         return w  # sin(theta) / theta -> 1
     if theta < math.pi - 1e-4:
