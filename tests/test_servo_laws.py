@@ -495,6 +495,27 @@ def test_pi_rotation_about_the_optical_axis_converges_where_plain_ibvs_retreats(
     assert plain["final_position_error_m"] > 100.0  # it went away along the optical axis
 
 
+@settings(max_examples=40, deadline=None)
+@given(
+    config=st.tuples(offsets, offsets, angles, angles, small),
+    q_dot=st.lists(st.floats(-1.0, 1.0), min_size=4, max_size=4),
+)
+def test_bench_robot_motion_in_f_is_what_the_jacobian_predicts(config, q_dot):
+    """The bench moves the base in the mirrored frame F (z down); the camera's motion it
+    produces is the twist cJq q_dot of eq. 3.2 (R conventions): the two agree."""
+    raw = json.loads((SCENES / "thesis-table-3-1-ibvs.json").read_text())
+    raw.pop("reference")
+    raw["dt"] = 1e-7
+    scene = bench.parse_scene(raw)
+    state = dict(zip(("x", "y", "theta", "pan", "tilt"), config, strict=True))
+    moved = bench._advance(scene, state, np.array(q_dot))
+    f_m_c0 = bench._c_m_o(scene, state).inverse()
+    f_m_c1 = bench._c_m_o(scene, moved).inverse()
+    twist = _twist_of(f_m_c0, f_m_c1, scene.dt)
+    expected = robot_jacobian_eq_3_2(scene.platform, state["pan"], state["tilt"]) @ q_dot
+    assert np.allclose(twist, expected, atol=1e-5)
+
+
 def test_scene_errors_teach():
     raw = json.loads((SCENES / "visp-ibvs-4pts.json").read_text())
     with pytest.raises(bench.SceneError, match="unknown keys"):
