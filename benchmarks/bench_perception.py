@@ -14,14 +14,22 @@ the adaptive breakpoint detector, RANSAC lines and circles) and ``ObstacleTracke
 (constant-velocity Kalman filters, gated global nearest neighbour, danger levels), with
 the garbage collector off. Prints the time per pair (mean, p50, p99) of each part and of
 the whole, and what the scene holds (returns, clusters, confirmed tracks per pair).
+
+Then the tracking metrics against sim2d's ground truth, as the dry-run judges them
+(``executive.dryrun``: a track within ``TRACK_MATCH_RADIUS`` of a mover's true position is
+that mover's; errors on tracks at least ``TRACK_SETTLED_AGE`` old): the movers' position
+and velocity errors, and the speed of every other confirmed track (static structure:
+the aircraft, parked vehicles, cones, walls), which should be zero.
 """
 
 from __future__ import annotations
 
 import argparse
 import gc
+import math
 import statistics
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -30,30 +38,47 @@ from bench_sim import CONTROL_HZ, RouteFollower
 from behaviours.laws.laser_clusters import KIND_NAMES, ScanClusterer
 from behaviours.laws.tracking import DangerParams, ObstacleTracker
 from executive.core.frames import Pose2
-from executive.core.records import LaserScan
+from executive.core.records import LaserScan, TrackedObstacle
 from executive.core.resources import missions_dir
+from executive.dryrun import TRACK_MATCH_RADIUS
+from executive.report import TRACK_SETTLED_AGE
 from sim2d.robot import SimRobot
 from sim2d.scenario import load_scenario
 
+Mover = tuple[float, float, float, float]
+"""A mover's true position and velocity in the airport frame: (x, y, vx, vy)."""
+Pair = tuple[list[LaserScan], Pose2, tuple[float, float], list[Mover]]
 
-def record(
-    scenario: Path, warmup: float, seconds: float
-) -> tuple[SimRobot, list[tuple[list[LaserScan], Pose2, tuple[float, float]]]]:
-    """Every new pair of scans after ``warmup`` s, with the true pose and the command."""
+
+def record(scenario: Path, warmup: float, seconds: float) -> tuple[SimRobot, list[Pair]]:
+    """Every new pair of scans after ``warmup`` s, with the true pose, the command and the
+    movers' true states."""
     robot = SimRobot(load_scenario(scenario))
     follower = RouteFollower(robot)
+    physics = robot.scenario.physics_rate
+    control = round(physics / CONTROL_HZ)
     pairs = []
     last = None
-    for _ in range(round((warmup + seconds) * CONTROL_HZ)):
-        command = follower.command(robot)
-        robot.send(command)
-        robot.advance(1.0 / CONTROL_HZ)
+    command = follower.command(robot)
+    for step in range(round((warmup + seconds) * physics)):
+        if step % control == 0:
+            command = follower.command(robot)
+            robot.send(command)
+        # one physics step at a time: the scans are taken at its end, so that the true
+        # pose read now is the scans' (a pose even 10 ms off moves every obstacle)
+        robot.advance(1.0 / physics)
         frame = robot.read()
         stamps = tuple(s.stamp for s in frame.scans.values())
         if robot.time > warmup and stamps != last:
             last = stamps
+            movers = [(m.agent.x, m.agent.y, m.agent.vx, m.agent.vy) for m in robot.world.moving]
             pairs.append(
-                (list(frame.scans.values()), robot.truth.robot, (command.v, command.omega))
+                (
+                    list(frame.scans.values()),
+                    robot.truth.robot,
+                    (command.v, command.omega),
+                    movers,
+                )
             )
     return robot, pairs
 
@@ -65,6 +90,49 @@ def summary(values: list[float]) -> tuple[float, float, float]:
         statistics.median(values),
         ordered[min(len(ordered) - 1, int(0.99 * len(ordered)))],
     )
+
+
+class TrackJudge:
+    """Confirmed tracks against the ground truth (the tracker's world frame is the airport
+    frame here: it is given the true pose)."""
+
+    def __init__(self) -> None:
+        self.position_error: list[float] = []
+        self.velocity_error: list[float] = []
+        self.static_speed: list[float] = []
+
+    def judge(self, tracks: Sequence[TrackedObstacle], pose: Pose2, movers: list[Mover]) -> None:
+        rot = pose.rotation()
+        for track in tracks:
+            x, y = pose.apply(np.array(track.position))
+            vx, vy = rot @ np.array(track.velocity)
+            d = [math.hypot(mx - x, my - y) for mx, my, _, _ in movers]
+            k = int(np.argmin(d)) if d else -1
+            if k >= 0 and d[k] <= TRACK_MATCH_RADIUS:
+                if track.age >= TRACK_SETTLED_AGE:
+                    _, _, mvx, mvy = movers[k]
+                    self.position_error.append(d[k])
+                    self.velocity_error.append(math.hypot(vx - mvx, vy - mvy))
+            else:
+                self.static_speed.append(math.hypot(vx, vy))
+
+    def lines(self) -> list[str]:
+        out = [f"| {'tracking':<44} | {'samples':>8} | {'mean':>8} | {'p50':>8} | {'p99':>8} |"]
+        out.append(f"|{'-' * 46}|{'-' * 10}|{'-' * 10}|{'-' * 10}|{'-' * 10}|")
+        for name, values, unit in (
+            ("movers: position error", self.position_error, "m"),
+            ("movers: velocity error", self.velocity_error, "m/s"),
+            ("static structure: track speed", self.static_speed, "m/s"),
+        ):
+            if not values:
+                out.append(f"| {name:<44} | {0:>8} | {'-':>8} | {'-':>8} | {'-':>8} |")
+                continue
+            mean, p50, p99 = summary(values)
+            out.append(
+                f"| {name + ' (' + unit + ')':<44} | {len(values):>8} | {mean:8.3f} | "
+                f"{p50:8.3f} | {p99:8.3f} |"
+            )
+        return out
 
 
 def main() -> None:
@@ -90,7 +158,7 @@ def main() -> None:
     kinds = np.zeros(len(KIND_NAMES))
     gc.disable()
     try:
-        for scans, pose, velocity in pairs:
+        for scans, pose, velocity, _ in pairs:
             with_mounts = [(scan, mounts[lid]) for lid, scan in zip(ids, scans, strict=True)]
             t0 = time.perf_counter_ns()
             found = clusterer.detect(with_mounts)
@@ -129,6 +197,16 @@ def main() -> None:
     ):
         mean, p50, p99 = summary(times)
         print(f"| {name:<44} | {mean:5.2f} ms | {p50:5.2f} ms | {p99:5.2f} ms |")
+
+    # the tracking metrics, on a second pass (not timed)
+    judge = TrackJudge()
+    clusterer = ScanClusterer(platform.length, platform.width)
+    tracker = ObstacleTracker(DangerParams(platform.length, platform.width))
+    for scans, pose, velocity, movers in pairs:
+        with_mounts = [(scan, mounts[lid]) for lid, scan in zip(ids, scans, strict=True)]
+        judge.judge(tracker.update(clusterer.detect(with_mounts), pose, velocity), pose, movers)
+    print()
+    print("\n".join(judge.lines()))
 
 
 if __name__ == "__main__":

@@ -402,6 +402,7 @@ def _clusters(stamp, position, size, kind):
         rms=np.zeros(n),
         clearance=np.hypot(position[:, 0], position[:, 1]),
         occluded=np.zeros(n, dtype=bool),
+        ends_visible=np.zeros((n, 2), dtype=bool),
     )
 
 

@@ -47,6 +47,12 @@ Python loops run over a few offsets, refinement rounds or candidate cluster pair
    limit of a circle of infinite radius, so the test prefers the line whenever it fits
    within the noise: a short arc of a big circle stays a line); otherwise a **line** when
    the line model is valid, else a **blob** (an L-shaped corner, a noisy group).
+5. **Line ends** (:func:`line_ends_visible`): whether each end of a line is the object's
+   true end or only where the view of it stops (the next beam is out of the field of view,
+   hits something in front of the line's extension, or hits the extension itself: the
+   surface goes on). A line is tracked by its fitted position across itself, and along
+   itself only when both ends are true (:mod:`behaviours.laws.tracking`): the visible part
+   of a wall longer than the view slides along it as the robot moves.
 """
 
 from __future__ import annotations
@@ -94,6 +100,9 @@ class ClusterParams:
     below a threshold; 5 returns is a walker at about 25 m).
     ``merge_distance`` (m): segments of two scanners are merged when a point of one is
     this close to a point of the other.
+    ``range_margin`` (m): a cluster with a return this close to the range limit is cut by
+    it (:attr:`Clusters.occluded`), and a line's end is true only if the beam beyond it
+    would meet the line's extension this much within the limit.
     ``ransac_hypotheses``: hypotheses per cluster and model; ``ransac_points``: at most
     this many points of each cluster (evenly strided) score them.
     ``refinements``: least-squares refits on the current inliers after RANSAC.
@@ -115,6 +124,7 @@ class ClusterParams:
     skip: int = 3
     min_points: int = 5
     merge_distance: float = 0.3
+    range_margin: float = 1.0
     ransac_hypotheses: int = 12
     ransac_points: int = 16
     refinements: int = 1
@@ -402,6 +412,95 @@ def occluded(
     return np.logical_or.reduceat(hidden, first)
 
 
+def line_ends_visible(
+    scans: Sequence[tuple[LaserScan, Pose2]],
+    points: ScanPoints,
+    order: IntArray,
+    start: IntArray,
+    line: FloatArray,
+    params: ClusterParams,
+) -> BoolArray:
+    """Step 5: per cluster (C, 2), True where the line's end (``line`` (C, 4): end points
+    ``(x0, y0, x1, y1)`` in R, NaN rows for other kinds: False) is the object's true end.
+
+    The view of a surface stops at an end of a run of beams of one scan; the beam just
+    beyond that end tells why. Cast along that beam, the line's extension would be met at
+    range ``r_ext``; the end is true only when the beam is in the field of view, ``r_ext``
+    is ``range_margin`` within the range limit (the beam could have seen the extension)
+    and the beam returned nothing or something farther than ``r_ext``: it saw *past*
+    where the line would go on. A
+    return nearer than ``r_ext`` hides the rest (occlusion); one at ``r_ext`` is the same
+    surface going on (split off by the breakpoint detector: a wall seen at grazing
+    incidence, or beyond a gap); no beam beyond (the edge of the field of view) proves
+    nothing. The tolerance is the inlier band stretched by the incidence,
+    ``eps / max(|n . u|, sin(lambda))`` (``n`` the line's normal, ``u`` the beam).
+
+    Each of the line's ends is judged on the run end, among the cluster's runs (one per
+    scanner that sees it), whose return lies farthest along the line that way: the one
+    that actually bounds the fitted segment (another scanner may see farther than one
+    whose field of view stops short of the end).
+    """
+    n_clusters = len(start) - 1
+    visible = np.zeros((n_clusters, 2), dtype=bool)
+    is_line = np.isfinite(line).all(axis=1)
+    if not is_line.any():
+        return visible
+    first = start[:-1]
+    n = len(order)
+    sc = points.scanner[order]
+    lo = np.zeros(n, dtype=bool)
+    lo[first] = True
+    lo[1:] |= sc[1:] != sc[:-1]
+    hi = np.zeros(n, dtype=bool)
+    hi[:-1] = lo[1:]
+    hi[-1] = True
+    at = np.concatenate((np.flatnonzero(lo), np.flatnonzero(hi)))
+    step = np.concatenate((np.full(lo.sum(), -1), np.full(hi.sum(), 1)))
+    cluster = np.searchsorted(start, at, side="right") - 1
+    keep = is_line[cluster]
+    at, step, cluster = at[keep], step[keep], cluster[keep]
+    p = order[at]
+    scanner, beam = points.scanner[p], points.beam[p] + step
+    # the line of each run end's cluster: unit direction d (end 0 -> end 1), normal n
+    x0, y0, x1, y1 = line[cluster].T
+    length = np.hypot(x1 - x0, y1 - y0)
+    dx, dy = (x1 - x0) / length, (y1 - y0) / length
+    nx, ny = -dy, dx
+    offset = nx * x0 + ny * y0
+    # the next beam: its direction u in R, its range, and where it would meet the line
+    ok = np.ones(len(at), dtype=bool)
+    angle = np.zeros(len(at))
+    measured = np.full(len(at), np.inf)
+    range_max = np.zeros(len(at))
+    for k, (scan, mount) in enumerate(scans):
+        mine = scanner == k
+        inside = mine & (beam >= 0) & (beam < len(scan.ranges))
+        ok[mine & ~inside] = False  # the edge of the field of view
+        b = beam[inside]
+        angle[inside] = mount.theta + scan.angle_min + scan.angle_increment * b
+        measured[inside] = scan.ranges[b]
+        range_max[mine] = scan.range_max
+    ux, uy = np.cos(angle), np.sin(angle)
+    facing = nx * ux + ny * uy
+    sensor = points.sensors[scanner]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r_ext = (offset - nx * sensor[:, 0] - ny * sensor[:, 1]) / facing
+    ok &= np.isfinite(r_ext) & (r_ext > 0.0) & (r_ext < range_max - params.range_margin)
+    tolerance = params.inlier_band / np.maximum(np.abs(facing), math.sin(params.incidence_limit))
+    returned = np.isfinite(measured) & (measured < range_max)
+    past = ~returned | (measured > r_ext + tolerance)
+    verdict = ok & past
+    # each end of the line is judged by the run end that reaches farthest that way
+    along = dx * points.x[p] + dy * points.y[p]
+    for end, sign in ((0, 1.0), (1, -1.0)):
+        rank = np.lexsort((sign * along, cluster))
+        head = np.ones(len(rank), dtype=bool)
+        head[1:] = cluster[rank][1:] != cluster[rank][:-1]
+        chosen = rank[head]
+        visible[cluster[chosen], end] = verdict[chosen]
+    return visible
+
+
 # -- 4. classify ----------------------------------------------------------------------------------
 @dataclass(frozen=True, slots=True, eq=False)
 class ClusterFits:
@@ -649,14 +748,21 @@ class Clusters:
     ``points`` (M, 2): the clustered points, cluster after cluster: cluster i is
     ``points[start[i]:start[i + 1]]`` (``start`` has C + 1 entries). ``kind``: codes
     :data:`LINE`, :data:`CIRCLE`, :data:`BLOB`. ``centroid`` (C, 2); ``position`` (C, 2)
-    the point to track: the circle centre, else the centroid; ``size`` the radius of a
-    circle enclosing the obstacle: the fitted radius of a circle, else the largest distance
-    of a point from the centroid; ``line`` (C, 4) the end points (x0, y0, x1, y1) of a
-    line and ``circle`` (C, 3) the centre and radius of a circle (NaN rows otherwise);
-    ``rms`` the residual of the fitted model over its inliers (NaN for a blob);
+    the point to track: the circle centre, the middle of a line, else the centroid;
+    ``size`` the radius of a circle enclosing the obstacle: the fitted radius of a circle,
+    else the largest distance of a point from the centroid; ``line`` (C, 4) the end points
+    (x0, y0, x1, y1) of a line and ``circle`` (C, 3) the centre and radius of a circle
+    (NaN rows otherwise); ``rms`` the residual of the fitted model over its inliers
+    (NaN for a blob);
     ``clearance`` the distance from the robot's footprint to the nearest point;
     ``occluded`` True when something in front cuts the view of the cluster (its
-    centroid, or its partial arc, is then biased: see :func:`occluded`).
+    centroid, or its partial arc, is then biased: see :func:`occluded`), or the range
+    limit does (a return within ``range_margin`` of it).
+    ``ends_visible`` (C, 2): for a line, whether its end ``(x0, y0)``, resp. ``(x1, y1)``,
+    is the object's true end rather than where the view of it stops
+    (:func:`line_ends_visible`); False for other kinds. A line's ``position`` is the
+    middle of its fitted segment (not the centroid of its returns, whose density varies
+    along it with the range and the incidence).
     ``returns`` and ``isolated`` count the returns and the removed isolated points.
     """
 
@@ -672,6 +778,7 @@ class Clusters:
     rms: FloatArray
     clearance: FloatArray
     occluded: BoolArray
+    ends_visible: BoolArray
     returns: int = 0
     isolated: int = 0
 
@@ -691,6 +798,7 @@ class Clusters:
             z,
             z,
             np.zeros(0, dtype=bool),
+            np.zeros((0, 2), dtype=bool),
             returns,
             isolated,
         )
@@ -736,6 +844,20 @@ class ScanClusterer:
         self.params = params or ClusterParams()
         self.rng = rng or np.random.default_rng(self.params.seed)
 
+    def _at_range_limit(
+        self,
+        scans: Sequence[tuple[LaserScan, Pose2]],
+        points: ScanPoints,
+        order: IntArray,
+        first: IntArray,
+    ) -> BoolArray:
+        """Per cluster, True when one of its returns is within ``range_margin`` of its
+        scanner's range limit: the rest of the object may lie beyond it, so the view is
+        cut as by an occluder (approaching it, the robot sees more and more of it)."""
+        limit = np.array([scan.range_max for scan, _ in scans]) - self.params.range_margin
+        far = points.ranges[order] >= limit[points.scanner[order]]
+        return np.logical_or.reduceat(far, first)
+
     def detect(self, scans: Sequence[tuple[LaserScan, Pose2]]) -> Clusters:
         """Detect the obstacles in ``scans``: ``(scan, mount)`` pairs, ``mount`` the
         scanner's pose in R. Pass every new scan of every scanner, together when they
@@ -755,19 +877,27 @@ class ScanClusterer:
         first = start[:-1]
         fits = fit_clusters(xy, start, pts.sensors[pts.scanner[order[first]]], p, self.rng)
         is_circle = (fits.kind == CIRCLE)[:, None]
+        middle = 0.5 * (fits.line[:, :2] + fits.line[:, 2:])
+        position = np.where(
+            is_circle,
+            fits.circle[:, :2],
+            np.where(fits.kind[:, None] == LINE, middle, fits.centroid),
+        )
         return Clusters(
             stamp=pts.stamp,
             points=xy,
             start=start,
             kind=fits.kind,
             centroid=fits.centroid,
-            position=np.where(is_circle, fits.circle[:, :2], fits.centroid),
+            position=position,
             size=np.where(is_circle[:, 0], fits.circle[:, 2], fits.size),
             line=fits.line,
             circle=fits.circle,
             rms=fits.rms,
             clearance=np.minimum.reduceat(footprint_distances(xy, self.length, self.width), first),
-            occluded=occluded(pts, kept, order, first, p),
+            occluded=occluded(pts, kept, order, first, p)
+            | self._at_range_limit(scans, pts, order, first),
+            ends_visible=line_ends_visible(scans, pts, order, start, fits.line, p),
             returns=returns,
             isolated=isolated,
         )

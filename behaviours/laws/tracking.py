@@ -13,13 +13,54 @@ continuous). Continuous white-noise acceleration of spectral density ``q = a^2``
 
     F = [[I, dt I], [0, I]]      Q = q [[dt^3/3 I, dt^2/2 I], [dt^2/2 I, dt I]]
 
-The measurement is the cluster's tracked point (circle centre, else centroid) in W,
-``H = [I 0]``, with ``R = sigma^2 I``: ``sigma = position_sigma`` for a circle, and
-``sqrt(position_sigma^2 + (size_sigma * size)^2)`` otherwise, since the centroid of a big
-object seen partly slides as the view changes; a partial view (occluded, or not the
-shape the track has) is down-weighted further (``partial_sigma``).
+The measurement is the cluster's tracked point (circle centre, middle of a line, else
+centroid) in W, ``H = [I 0]``, with ``R = sigma^2 I``: ``sigma^2 = sigma_0^2 =
+position_sigma^2 + (angular_sigma * range)^2`` for a circle, and
+``sigma_0^2 + (size_sigma * size)^2`` otherwise, since the
+centroid of a big object seen partly slides as the view changes; a partial view
+(occluded, or not the shape the track has) is down-weighted further (``partial_sigma``).
 
-Data association: global nearest neighbour. Track-cluster pairs are gated by the squared
+Lines are measured by the fitted line itself, not by a point of their visible part. A
+wall longer than the view, or cut by something in front, shows a part that changes as
+the robot moves: the middle of that part slides along the wall at up to the robot's
+speed, and a constant-velocity filter fed with it reports the static wall as a mover
+(the empty lab's fence at 0.19 m/s, enough to engage avoidance). What a partial view
+does fix is the line's position *across* itself: its motion along itself is unobservable
+(the aperture problem; :func:`behaviours.laws.obstacles.observable_velocity` is the same
+fact on the avoidance side). So a line assigned to a line track (a track whose
+assignments were mostly lines) updates the filter in two scalar steps in the basis of
+the fitted line, normal ``n`` and direction ``t`` (independent noises: sequential scalar
+updates are the joint update):
+
+* across: ``z_n = n . m`` (``m`` the middle of the fitted segment), ``H = [n^T 0]``,
+  variance ``sigma_0^2``: the line's offset is measured whatever part is seen;
+* along: ``z_t = t . m``, ``H = [t^T 0]``, the centroid variance above, when both
+  ends are the object's true ends (``Clusters.ends_visible``, judged on the beams beyond
+  them) in this scan and in the track's previous line update, so that ``m`` is the
+  middle of the object both times. Otherwise the along-line coordinate is *re-anchored*:
+  the track's point slides along the line to ``m`` (a change of the reference point on
+  a rigid line, not a motion: the velocity is left alone), its along-line position gets
+  the centroid variance and loses its correlations, and an along-line velocity variance
+  above the new-track prior ``initial_speed_sigma^2`` is scaled down to it (so that the
+  first whole views after a long partial one cannot turn noise into speed).
+
+Another shape assigned to a line track (the wall seen together with something against
+it: a centroid off the line by an unknown amount), and a blob bigger than
+``max_blob_size`` (a part of a large structure, the aircraft's, whose visible part changes
+with the view) only re-anchor the track, on both axes: they say where it is, not how it
+moves. So does the
+next view after such an anchor (for a line, across it): its difference from the anchor
+is the difference between two views, not a motion (a track alternating between a wall
+and a blob of the wall with a wheel against it).
+
+A static wall thus keeps the zero along-line velocity it was born with, and a mover
+seen as a line keeps the velocity it had when its ends were seen: a box coming at the
+robot face first is measured across its face; one passing sideways along its face, when
+its ends are seen.
+
+Data association: global nearest neighbour (a line and a line track are paired with the
+covariance of the line model below: ``sigma_0^2`` across the line, along it the
+centroid's, or the partial view's when an end is cut). Track-cluster pairs are gated by the squared
 Mahalanobis distance of the innovation (``d^2 = y^T S^-1 y <= gate``, chi-square with 2
 degrees of freedom) and assigned by minimising the sum of ``d^2 + ln det S`` (the
 negative log-likelihood) with the Hungarian method (``scipy.optimize.
@@ -49,7 +90,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import linear_sum_assignment
 
-from behaviours.laws.laser_clusters import CIRCLE, KIND_NAMES, LINE, Clusters
+from behaviours.laws.laser_clusters import BLOB, CIRCLE, KIND_NAMES, LINE, Clusters
 from behaviours.laws.obstacles import footprint_distances
 from executive.core.frames import FloatArray, Pose2
 from executive.core.records import Danger, TrackedObstacle
@@ -168,7 +209,9 @@ class TrackerParams:
     ``accel_noise`` (m/s^2 per sqrt(Hz)): a, the white-noise acceleration (q = a^2);
     1 lets a walker start, stop and turn. ``position_sigma`` (m): measurement noise of a
     circle's centre or a small cluster's centroid (a floor for the biases of the fits,
-    well above their white noise); ``size_sigma``: the extra measurement noise of a
+    well above their white noise), to which ``angular_sigma`` (rad, one beam of the
+    UTM-30LX) times the range adds the fits' growing error on fewer, sparser returns far
+    away; ``size_sigma``: the extra measurement noise of a
     line's or blob's centroid, per metre of its size.
     ``partial_sigma``: a partial view of a track's object is biased by up to the object's
     size, so its measurement noise grows by ``partial_sigma`` times that size: it keeps
@@ -176,6 +219,12 @@ class TrackerParams:
     a circle track, a line, a blob, or a circle whose radius differs from the track's by
     more than ``radius_tolerance`` times it.
     ``initial_speed_sigma`` (m/s): velocity standard deviation of a new track.
+    ``max_blob_size`` (m): a blob (neither line nor circle) bigger than this (enclosing
+    radius) is a part of a large structure whose visible part changes with the view, so
+    its centroid only re-anchors the track: it carries no velocity (a walker, a trolley
+    or a small group stays below it).
+    ``unseen_motion_time`` (s): a velocity component no view measures (an anchor: see the
+    module docstring) is forgotten with this time constant.
     ``gate``: chi-square gate on the squared Mahalanobis distance (13.8: 99.9 % for 2
     degrees of freedom). ``confirm_hits``: assignments that confirm a track (M).
     ``tentative_timeout``, ``coast_time`` (s): a tentative, resp. confirmed, track not
@@ -184,10 +233,13 @@ class TrackerParams:
 
     accel_noise: float = 1.0
     position_sigma: float = 0.05
+    angular_sigma: float = math.radians(0.25)
     size_sigma: float = 0.25
     initial_speed_sigma: float = 1.5
     partial_sigma: float = 5.0
     radius_tolerance: float = 0.25
+    max_blob_size: float = 1.0
+    unseen_motion_time: float = 0.5
     gate: float = 13.8
     confirm_hits: int = 3
     tentative_timeout: float = 0.1
@@ -218,6 +270,11 @@ class ObstacleTracker:
         self.radius = np.zeros(0)
         self.line = np.zeros((0, 4))  # last line end points, in W
         self.clearance = np.zeros(0)
+        #: the last update measured the track as a line whose two ends were true ends
+        self.whole_line = np.zeros(0, dtype=bool)
+        #: the last update only re-anchored the track (a view that shows no motion)
+        self.anchored = np.zeros(0, dtype=bool)
+        self.last_kind = np.zeros(0, dtype=np.int8)  # the kind of the last assigned cluster
 
     def __len__(self) -> int:
         return len(self.ids)
@@ -235,11 +292,9 @@ class ObstacleTracker:
         p = self.params
         z = pose.apply(clusters.position) if len(clusters) else np.zeros((0, 2))
         is_circle = clusters.kind == CIRCLE
-        r = np.where(
-            is_circle,
-            p.position_sigma**2,
-            p.position_sigma**2 + (p.size_sigma * clusters.size) ** 2,
-        )
+        # the fits' errors grow with the range: fewer, sparser returns (one beam's spacing)
+        floor = p.position_sigma**2 + (p.angular_sigma * np.hypot(*clusters.position.T)) ** 2
+        r = np.where(is_circle, floor, floor + (p.size_sigma * clusters.size) ** 2)
         # a partial view (the cluster is occluded, or a circle track is seen as a line or
         # a blob, whose centroid is not the centre) is biased by up to the object's size
         circle_track = (2 * self.votes[:, CIRCLE] > self.hits)[:, None]
@@ -249,13 +304,85 @@ class ObstacleTracker:
         partial = circle_track & (~is_circle | off_radius)
         partial |= clusters.occluded
         r_pair = r + partial * (p.partial_sigma * self.size[:, None]) ** 2
-        rows, cols = self._associate(z, r_pair)
-        self._correct(rows, z[cols], r_pair[rows, cols])
+        # a line measures a line track across itself to within sigma_0: gate it so
+        ends = clusters.line[:, 2:] - clusters.line[:, :2]
+        is_line = (clusters.kind == LINE) & (np.hypot(ends[:, 0], ends[:, 1]) > 1e-9)
+        direction = np.where(is_line[:, None], ends, 1.0) @ pose.rotation().T
+        direction /= np.hypot(direction[:, 0], direction[:, 1])[:, None]
+        normal = np.column_stack((-direction[:, 1], direction[:, 0]))
+        line_track = 2 * self.votes[:, LINE] > self.hits
+        pair_line = line_track[:, None] & is_line[None, :]
+        # ... and along itself to within the centroid's variance when seen whole (the
+        # inflated partial variance would let it take a collinear line: an engine's inlet
+        # for the other's)
+        whole = is_line & clusters.ends_visible.all(axis=1)
+        across = np.where(pair_line, floor[None, :], r_pair)
+        seen_whole = ~circle_track & whole[None, :]  # any track but a walker's
+        along = np.where(seen_whole, r[None, :], r_pair)
+        r_xx = across * normal[:, 0] ** 2 + along * direction[:, 0] ** 2
+        r_xy = (across - along) * normal[:, 0] * normal[:, 1]
+        r_yy = across * normal[:, 1] ** 2 + along * direction[:, 1] ** 2
+        rows, cols = self._associate(z, r_xx, r_xy, r_yy)
+        # no measurement of motion, only a new anchor: a view of another kind than the
+        # last one (the middle of a face, then the centroid of an L or the centre of a
+        # fitted arc: other points of the object), a line track seen as another shape
+        # (the wall with something against it), or a big blob (part of a large structure,
+        # its visible part changing)
+        kind = clusters.kind[cols]
+        not_circle = ~circle_track[rows, 0]
+        anchor = (not_circle & (kind != self.last_kind[rows])) | (line_track[rows] & ~is_line[cols])
+        anchor |= (kind == BLOB) & (clusters.size[cols] > p.max_blob_size)
+        # lines on any track but a circle's are measured across the line, and along it only
+        # when seen whole
+        by_line = not_circle & is_line[cols] & ~anchor
+        # the view after an anchor is another view of the object: its difference from
+        # the anchor is no motion either (a track alternating between a wall and a blob)
+        again = self.anchored[rows] & ~anchor
+        anchor |= again & ~by_line
+        by_line_again = again & by_line
+        self.anchored[rows] = anchor & ~again
+        # a circle track seen as another shape, or with another radius (a walker's arc cut
+        # short, flattened into a line): its centroid is off the centre by up to the
+        # radius, always on the robot's side: however weighted, it would drag the track
+        # towards the robot. The track is seen (kept alive), its filter only predicts.
+        shape_off = circle_track[rows, 0] & (~is_circle[cols] | off_radius[rows, cols])
+        point = ~by_line & ~anchor & ~shape_off
+        self._correct(rows[point], z[cols[point]], r_pair[rows[point], cols[point]])
+        for axis in np.eye(2):
+            n_anchor = int(anchor.sum())
+            self._reanchor(
+                rows[anchor], np.tile(axis, (n_anchor, 1)), z[cols[anchor]], r[cols[anchor]]
+            )
+        rows_l, cols_l = rows[by_line], cols[by_line]
+        if len(rows_l):
+            direction, normal = direction[cols_l], normal[cols_l]
+            z_l = z[cols_l]
+            measure = ~by_line_again[by_line]
+            self._correct_scalar(
+                rows_l[measure],
+                normal[measure],
+                (normal[measure] * z_l[measure]).sum(axis=1),
+                floor[cols_l[measure]],
+            )
+            self._reanchor(
+                rows_l[~measure], normal[~measure], z_l[~measure], floor[cols_l[~measure]]
+            )
+            along = whole[cols_l] & self.whole_line[rows_l] & measure
+            self._correct_scalar(
+                rows_l[along],
+                direction[along],
+                (direction[along] * z_l[along]).sum(axis=1),
+                r[cols_l[along]],
+            )
+            slide = ~along
+            self._reanchor(rows_l[slide], direction[slide], z_l[slide], r[cols_l[slide]])
+        self.whole_line[rows] = whole[cols]
+        self.last_kind[rows] = clusters.kind[cols]
         self._describe(rows, cols, clusters, pose, t, ~partial[rows, cols])
         fresh = np.ones(len(clusters), dtype=bool)
         fresh[cols] = False
         new = np.flatnonzero(fresh)
-        self._spawn(z[new], r[new], t)
+        self._spawn(z[new], r[new], t, whole[new], clusters.kind[new])
         rows = np.arange(len(self) - len(new), len(self))
         self._describe(rows, new, clusters, pose, t, np.ones(len(new), dtype=bool))
         self._prune(t)
@@ -273,15 +400,18 @@ class ObstacleTracker:
         p[:, :, :2] += dt * p[:, :, 2:]
         p += np.array([[q11, 0, q12, 0], [0, q11, 0, q12], [q12, 0, q22, 0], [0, q12, 0, q22]])
 
-    def _associate(self, z: FloatArray, r: FloatArray) -> tuple[IntArray, IntArray]:
+    def _associate(
+        self, z: FloatArray, r_xx: FloatArray, r_xy: FloatArray, r_yy: FloatArray
+    ) -> tuple[IntArray, IntArray]:
         """Global nearest neighbour between the tracks and the measurements ``z`` (C, 2)
-        of variance ``r`` (T, C): (track rows, cluster columns) of the gated pairs."""
+        of covariance ``[[r_xx, r_xy], [r_xy, r_yy]]`` (each (T, C)): (track rows, cluster
+        columns) of the gated pairs."""
         if len(self) == 0 or len(z) == 0:
             return np.zeros(0, dtype=np.intp), np.zeros(0, dtype=np.intp)
         p = self.covariance
-        a = p[:, 0, 0, None] + r
-        b = p[:, 0, 1, None]
-        c = p[:, 1, 1, None] + r
+        a = p[:, 0, 0, None] + r_xx
+        b = p[:, 0, 1, None] + r_xy
+        c = p[:, 1, 1, None] + r_yy
         dx = z[:, 0] - self.state[:, 0, None]
         dy = z[:, 1] - self.state[:, 1, None]
         det = a * c - b * b
@@ -310,9 +440,74 @@ class ObstacleTracker:
         p = p - ph @ gain.transpose(0, 2, 1)
         self.covariance[rows] = 0.5 * (p + p.transpose(0, 2, 1))
 
+    def _correct_scalar(self, rows: IntArray, u: FloatArray, z: FloatArray, r: FloatArray) -> None:
+        """Kalman update of tracks ``rows`` with the scalar measurements ``z = u . p``
+        (``u`` (m, 2) unit directions, ``H = [u^T 0]``) of variance ``r``:
+        ``K = P H^T / S``, ``S = H P H^T + r``, ``P <- P - K (P H^T)^T``."""
+        if len(rows) == 0:
+            return
+        p = self.covariance[rows]
+        ph = (p[:, :, :2] @ u[:, :, None])[:, :, 0]  # P H^T (m, 4)
+        s = (ph[:, :2] * u).sum(axis=1) + r
+        gain = ph / s[:, None]
+        y = z - (self.state[rows, :2] * u).sum(axis=1)
+        self.state[rows] += gain * y[:, None]
+        p = p - gain[:, :, None] * ph[:, None, :]
+        self.covariance[rows] = 0.5 * (p + p.transpose(0, 2, 1))
+
+    def _reanchor(self, rows: IntArray, t: FloatArray, z: FloatArray, r: FloatArray) -> None:
+        """Slide the point of line tracks ``rows`` along their lines (directions ``t``
+        (m, 2) in W) to the measured middles ``z`` (m, 2): a new reference point on the
+        line, not a motion. In the basis (p_n, p_t, v_n, v_t) the along-line position gets
+        variance ``r`` and no correlation (a fresh, independent anchor), and the along-line
+        velocity is scaled down to at most the new-track prior (a congruence by
+        ``diag(1, 1, 1, alpha)``, ``alpha <= 1``: the covariance stays positive
+        semi-definite).
+
+        The velocity along ``t`` is not measured by an anchor: it is forgotten with the
+        time constant ``unseen_motion_time`` (a first-order Markov velocity, Singer 1970),
+        so that a motion no view confirms (a new track's first noisy guess, the last
+        speed of a walker now merged into a wall) fades instead of lasting for ever."""
+        if len(rows) == 0:
+            return
+        x = self.state[rows]
+        shift = ((z - x[:, :2]) * t).sum(axis=1)
+        x[:, :2] += shift[:, None] * t
+        now = self.stamp if self.stamp is not None else 0.0
+        fade = 1.0 - np.exp(
+            -np.maximum(now - self.seen[rows], 0.0) / self.params.unseen_motion_time
+        )
+        x[:, 2:] -= (fade * (x[:, 2:] * t).sum(axis=1))[:, None] * t
+        self.state[rows] = x
+        m = len(rows)
+        basis = np.zeros((m, 4, 4))  # rows: n, t for the position, then for the velocity
+        basis[:, 0, 0], basis[:, 0, 1] = -t[:, 1], t[:, 0]
+        basis[:, 1, :2] = t
+        basis[:, 2, 2], basis[:, 2, 3] = -t[:, 1], t[:, 0]
+        basis[:, 3, 2:] = t
+        p = basis @ self.covariance[rows] @ basis.transpose(0, 2, 1)
+        p[:, 1, :] = 0.0
+        p[:, :, 1] = 0.0
+        p[:, 1, 1] = r
+        prior = self.params.initial_speed_sigma**2
+        alpha = np.sqrt(np.minimum(prior / np.maximum(p[:, 3, 3], 1e-300), 1.0))
+        p[:, 3, :] *= alpha[:, None]
+        p[:, :, 3] *= alpha[:, None]
+        p = basis.transpose(0, 2, 1) @ p @ basis
+        self.covariance[rows] = 0.5 * (p + p.transpose(0, 2, 1))
+
     # -- track management -------------------------------------------------------------------------
-    def _spawn(self, z: FloatArray, r: FloatArray, t: float) -> None:
-        """New tentative tracks at ``z``, at rest with a broad velocity prior."""
+    def _spawn(
+        self,
+        z: FloatArray,
+        r: FloatArray,
+        t: float,
+        whole_line: NDArray[np.bool_],
+        kind: NDArray[np.int8],
+    ) -> None:
+        """New tentative tracks at ``z``, at rest with a broad velocity prior;
+        ``whole_line``: those born of a line seen whole (:attr:`whole_line`); ``kind``:
+        their clusters' kinds."""
         n = len(z)
         if n == 0:
             return
@@ -331,6 +526,9 @@ class ObstacleTracker:
         self.radius = np.concatenate((self.radius, np.zeros(n)))
         self.line = np.concatenate((self.line, np.zeros((n, 4))))
         self.clearance = np.concatenate((self.clearance, np.zeros(n)))
+        self.whole_line = np.concatenate((self.whole_line, whole_line))
+        self.anchored = np.concatenate((self.anchored, np.zeros(n, dtype=bool)))
+        self.last_kind = np.concatenate((self.last_kind, kind.astype(np.int8)))
 
     def _describe(
         self,
@@ -376,6 +574,9 @@ class ObstacleTracker:
             "radius",
             "line",
             "clearance",
+            "whole_line",
+            "anchored",
+            "last_kind",
         ):
             setattr(self, name, getattr(self, name)[keep])
 
