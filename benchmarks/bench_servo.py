@@ -49,7 +49,6 @@ from behaviours.laws.theta_u import (  # noqa: E402
 from executive.core.frames import (  # noqa: E402
     Pose2,
     Transform3,
-    aircraft_from_robot,
     moved_in_aircraft,
     wrap_angle,
 )
@@ -232,9 +231,7 @@ def load_scene(path: Path) -> Scene:
 def _f_m_c(scene: Scene, config: dict[str, float]) -> Transform3:
     """Robot mode: the camera in F for a base pose in F and PTU angles."""
     pose = Pose2(config["x"], config["y"], config["theta"])
-    return aircraft_from_robot(pose, scene.ground_z) @ scene.platform.robot_from_camera(
-        config["pan"], config["tilt"]
-    )
+    return scene.platform.aircraft_from_camera(pose, config["pan"], config["tilt"], scene.ground_z)
 
 
 def _c_m_o(scene: Scene, state: Any) -> Transform3:

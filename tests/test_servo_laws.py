@@ -184,6 +184,18 @@ def test_air_cobot_reference_geometry():
         PanTiltCamera.air_cobot("middle")
 
 
+def test_camera_in_the_aircraft_frame():
+    """F is z down and mirrored: the camera of a robot at (x, y, h) in F stands 0.715 m
+    above the ground (z_F = origin_height - 0.715) and looks along (cos h, sin h, 0)."""
+    camera = PanTiltCamera.air_cobot("right")
+    f_m_c = camera.aircraft_from_camera(Pose2(3.0, -2.0, 0.6), 0.0, 0.0, 2.5)
+    assert math.isclose(f_m_c.translation[2], 2.5 - AIR_COBOT_CAMERA_HEIGHT)
+    assert np.allclose(f_m_c.rotation[:, 2], (math.cos(0.6), math.sin(0.6), 0.0))
+    ahead = f_m_c.apply([0.0, 0.0, 4.0])  # 4 m down the optical axis, in F
+    xy, z = project_points(f_m_c.inverse(), [ahead])
+    assert np.allclose(xy, 0.0) and np.isclose(z[0], 4.0)
+
+
 def test_camera_geometry_from_a_mission_camera_element():
     spec = CameraSpec(
         "front", CameraKind.STEREO, (0.55, 0.0, 1.2), 0.0, 1384, 1032, 4.65e-6, 6e-3,

@@ -56,7 +56,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from executive.core.frames import FloatArray, Transform3, robot_from_camera
+from executive.core.frames import (
+    FloatArray,
+    Pose2,
+    Transform3,
+    aircraft_from_robot,
+    robot_from_camera,
+)
 from executive.core.model import CameraSpec
 
 __all__ = [
@@ -126,6 +132,16 @@ class PanTiltCamera:
         r_m_e = robot_from_camera(self.mount, self.mount_yaw, pan, tilt, self.lateral)
         offset = np.asarray(self.optical_offset, dtype=float)
         return Transform3(r_m_e.rotation, r_m_e.translation + r_m_e.rotation @ offset)
+
+    def aircraft_from_camera(
+        self, pose_f: Pose2, pan: float, tilt: float, origin_height: float
+    ) -> Transform3:
+        """``fMc``: the camera in the aircraft frame F for the base at ``pose_f`` (a pose in
+        F, the ground at ``z_F = origin_height``). Its inverse ``cMf`` projects feature
+        points given in F: from a checkpoint's pose and PTU angles it gives the desired
+        image ``s*`` and depths (``project_points(cMf, points_f)``), and ``c*Mo`` for PBVS.
+        """
+        return aircraft_from_robot(pose_f, origin_height) @ self.robot_from_camera(pan, tilt)
 
 
 def robot_jacobian_eq_3_2(camera: PanTiltCamera, pan: float, tilt: float) -> FloatArray:
