@@ -166,6 +166,34 @@ def test_a_partly_hidden_cluster_is_occluded():
     assert [bool(clusters.occluded[i]) for i in by_range] == [False, True]
 
 
+@pytest.mark.parametrize(
+    ("scene", "expected"),
+    [
+        (Scene(segments=[(6.0, -2.0, 6.8, 2.5)]), [True, True]),  # a short wall in the open
+        (Scene.from_box(6.0, 0.0, 0.0, 0.8, 3.0), [True, True]),  # a box's face: corners
+        (Scene(segments=[(-40.0, 2.0, 40.0, 2.0)]), [False, False]),  # grazing both ways
+        (Scene(segments=[(25.0, -60.0, 25.0, 60.0)]), [False, False]),  # to the range limit
+    ],
+    ids=["short-wall", "box-face", "long-wall-beside", "long-wall-ahead"],
+)
+def test_a_line_end_is_true_only_where_the_beam_beyond_sees_past_it(scene, expected):
+    (wall,) = [i for i, k in enumerate(detect(scene, sigma=0.01).kind) if k == LINE]
+    assert detect(scene, sigma=0.01).ends_visible[wall].tolist() == expected
+
+
+def test_a_line_end_hidden_by_something_in_front_is_not_true():
+    """A wall with a pole in front of its left part: the end beside the pole's shadow is
+    where the view stops, not the wall's end; the right end is the wall's."""
+    clusters = detect(Scene(segments=[(6.0, -2.0, 6.0, 2.0)], circles=[(3.0, 0.8, 0.3)]))
+    (wall,) = [i for i in range(len(clusters)) if clusters.kind[i] == LINE]
+    x0, y0, x1, y1 = clusters.line[wall]
+    left = 0 if y0 > y1 else 1  # the end nearer the pole's side (+y)
+    assert not clusters.ends_visible[wall, left] and clusters.ends_visible[wall, 1 - left]
+    assert clusters.position[wall] == pytest.approx(
+        ((x0 + x1) / 2.0, (y0 + y1) / 2.0)
+    )  # a line is tracked by its middle
+
+
 OUTLIER_SCENE = Scene.concat(
     [
         Scene(circles=[(4.0, 1.0, 0.3), (6.0, -3.0, 0.6), (-3.0, -4.0, 0.25)]),
