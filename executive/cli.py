@@ -8,8 +8,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -26,7 +27,10 @@ from executive.core.resources import missions_dir, shipped_mission_files
 from sim2d.scenario import check_scenario, load_scenario
 
 if TYPE_CHECKING:
+    from executive.dryrun import DryRun
+    from executive.journal import JournalState
     from executive.runtime import StopRequest
+    from sim2d.scenario import Scenario
 
 EXIT_OK = 0
 EXIT_FAILED = 1
@@ -199,6 +203,7 @@ SEED_RANGE = (0, 2**32 - 1)
 REPORT_FILES = ("metrics.json", "events.jsonl", "trajectory.png", "timeline.png", "avoidance.png")
 """What a dry-run writes in its folder besides the journal; removed before a new run."""
 JOURNAL_FILE = "journal.jsonl"
+DEFAULT_MISSED_DEADLINES = 10
 SIGNALS = ("SIGINT", "SIGTERM", "SIGHUP")
 """Signals that end a run safely: the robot is sent a stop, the journal is closed with an
 ``interrupted`` record, a partial report is written; exit status 128 + the signal."""
@@ -215,6 +220,10 @@ def _resume_command(args: argparse.Namespace, scenario: Path) -> str:
         words.append("--no-avoidance")
     if args.max_time is not None:
         words += ["--max-time", f"{args.max_time:g}"]
+    if args.max_missed_deadlines != DEFAULT_MISSED_DEADLINES:
+        words += ["--max-missed-deadlines", str(args.max_missed_deadlines)]
+    if args.quiet:
+        words.append("--quiet")
     return shlex.join([*words, "--resume"])
 
 
@@ -252,12 +261,14 @@ def cmd_dry_run(args: argparse.Namespace) -> int:
     stop = StopRequest()
 
     def on_signal(signum: int, _frame: object) -> None:
+        if stop:  # a second signal: the first one's safe ending is not coming, go now
+            raise SystemExit(128 + signum)  # the runtime still sends its stop on the way out
         stop.set(f"interrupted by {signal.Signals(signum).name}", signum)
 
     previous = {}
     for name in SIGNALS:
-        if hasattr(signal, name):
-            sig = getattr(signal, name)
+        sig = getattr(signal, name, None)
+        if sig is not None and signal.getsignal(sig) is not signal.SIG_IGN:  # nohup stays
             previous[sig] = signal.signal(sig, on_signal)
     try:
         return _dry_run(args, stop)
@@ -279,7 +290,7 @@ def _dry_run(args: argparse.Namespace, stop: StopRequest) -> int:
 
     from executive.core.files import UnusableFileError, describe_os_error, remove_if_present
     from executive.dryrun import dry_run
-    from executive.journal import check_resumable, read_journal
+    from executive.journal import check_resumable, check_resume_pose, read_journal
     from executive.report import write_report
 
     bad = _check_dry_run_arguments(args)
@@ -295,7 +306,7 @@ def _dry_run(args: argparse.Namespace, stop: StopRequest) -> int:
         return _report(problems)
     scenario = load_scenario(scenario_path)
     mission = load_mission(mission_path)
-    if scenario.mission.source != mission.source:
+    if not _same_file(scenario.mission.source, mission.source):
         print(
             f"{scenario_path}: this scenario stages mission '{scenario.mission.id}' "
             f"({scenario.mission.source}), not {mission_path}",
@@ -316,25 +327,28 @@ def _dry_run(args: argparse.Namespace, stop: StopRequest) -> int:
                 f"(journal {journal}): nothing to resume, the robot is not moved"
             )
             return EXIT_OK
+        check_resume_pose(state, mission, journal)
+
+    def clear_old_report() -> None:
+        """Once the run can start (compiled, simulator built): before, nothing is lost."""
+        if stop:
+            raise _InterruptedBeforeStartError
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+            for name in REPORT_FILES if args.resume else (*REPORT_FILES, JOURNAL_FILE):
+                remove_if_present(out / name)
+        except UnusableFileError as exc:
+            raise _OutputError(str(exc)) from None
+        except OSError as exc:
+            raise _OutputError(f"--out {describe_os_error(exc, out, 'preparing')}") from None
+
     try:
-        out.mkdir(parents=True, exist_ok=True)
-        for name in REPORT_FILES if args.resume else (*REPORT_FILES, JOURNAL_FILE):
-            remove_if_present(out / name)
-    except UnusableFileError as exc:
+        run = _run(dry_run, scenario, args, journal, state, stop, clear_old_report)
+    except _InterruptedBeforeStartError:
+        print(f"walkaround: {stop.reason} before the run started; nothing changed", file=sys.stderr)
+        return 128 + (stop.signal or 0)
+    except _OutputError as exc:
         return _bad_argument(str(exc))
-    except OSError as exc:
-        return _bad_argument(f"--out {describe_os_error(exc, out, 'preparing')}")
-    run = dry_run(
-        scenario,
-        rate_hz=args.rate,
-        journal_path=journal,
-        resume=state if state is not None else False,
-        progress_out=sys.stderr if not args.quiet else None,
-        avoidance=args.avoidance,
-        stop=stop,
-        max_missed_deadlines=args.max_missed_deadlines or None,
-        max_time=args.max_time,
-    )
     report_error = None
     try:
         write_report(run, out)
@@ -352,21 +366,63 @@ def _dry_run(args: argparse.Namespace, stop: StopRequest) -> int:
         f"{run.wall_time:.1f} s; "
         + (f"report in {out}" if report_error is None else "no complete report")
     )
+    stopped = (
+        "the robot was sent a stop"
+        if run.result.stop_sent
+        else "the robot's stop was NOT confirmed: its link is lost"
+    )
     for problem in (run.journal_error, report_error):
         if problem:
-            print(f"walkaround: {problem}; the robot was sent a stop", file=sys.stderr)
-    sent_stop = bool(run.last_commands) and run.last_commands[-1][1].v == 0.0
+            print(f"walkaround: {problem}; {stopped}", file=sys.stderr)
     if run.result.outcome == "interrupted" or run.journal_error or report_error:
         print(
-            f"walkaround: run ended ({run.result.reason}); the robot was "
-            f"{'sent a stop' if sent_stop else 'not sent a stop'}; journal {journal}"
+            f"walkaround: run ended ({run.result.reason}); {stopped}; journal {journal}"
             + (f"; partial report in {out}" if report_error is None else "")
             + f"; continue with: {_resume_command(args, scenario_path)}",
             file=sys.stderr,
         )
     if run.result.outcome == "interrupted" and stop.signal is not None:
         return 128 + stop.signal
-    return EXIT_OK if run.succeeded else EXIT_FAILED
+    ok = run.succeeded and report_error is None and run.journal_error is None
+    return EXIT_OK if ok else EXIT_FAILED
+
+
+class _InterruptedBeforeStartError(Exception):
+    """A signal came before the run started."""
+
+
+class _OutputError(Exception):
+    """The report folder could not be prepared."""
+
+
+def _run(
+    dry_run: Callable[..., DryRun],
+    scenario: Scenario,
+    args: argparse.Namespace,
+    journal: Path,
+    state: JournalState | None,
+    stop: StopRequest,
+    before_start: Callable[[], None],
+) -> DryRun:
+    return dry_run(
+        scenario,
+        rate_hz=args.rate,
+        journal_path=journal,
+        resume=state if state is not None else False,
+        progress_out=sys.stderr if not args.quiet else None,
+        avoidance=args.avoidance,
+        stop=stop,
+        max_missed_deadlines=args.max_missed_deadlines or None,
+        max_time=args.max_time,
+        before_start=before_start,
+    )
+
+
+def _same_file(a: str | Path, b: str | Path) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return Path(a).resolve() == Path(b).resolve()
 
 
 def cmd_show(args: argparse.Namespace) -> int:
@@ -485,7 +541,7 @@ def build_parser() -> argparse.ArgumentParser:
     dry.add_argument(
         "--max-missed-deadlines",
         type=int,
-        default=10,
+        default=DEFAULT_MISSED_DEADLINES,
         metavar="N",
         help="stop the robot and fail the run after N consecutive missed tick deadlines "
         "(default 10; 0: never)",

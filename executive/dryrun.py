@@ -586,6 +586,7 @@ def dry_run(
     avoidance_params: AvoidanceParams | None = None,
     stop: StopRequest | None = None,
     max_missed_deadlines: int | None = DEFAULT_MAX_MISSED_DEADLINES,
+    before_start: Callable[[], None] | None = None,
 ) -> DryRun:
     """Run the scenario's mission with the executive in sim2d and judge it.
 
@@ -593,7 +594,9 @@ def dry_run(
     :class:`JournalState` is one already read and checked (the CLI reads it before any
     work, to refuse a bad journal with exit status 2). The robot starts where the last
     completed checkpoint was reached; the checkpoints completed before keep the outcome
-    judged when they were completed.
+    judged when they were completed. ``before_start`` is called once the mission is
+    compiled and the simulator built, before anything is written: the CLI clears the old
+    report there, so a run that cannot start destroys nothing.
     """
     mission = scenario.mission
     state: JournalState | None = None
@@ -622,6 +625,8 @@ def dry_run(
         1.0 / rate_hz,
         geofence_margin=mission.safety.geofence_margin,
     )
+    if before_start is not None:
+        before_start()
     journal = None
     if journal_path is not None:
         journal = Journal(
@@ -762,10 +767,12 @@ def judge(run: DryRun) -> list[Cause]:
         stop = _active_stop(run) if result.outcome == "timeout" else None
         if stop is not None:
             causes.append(stop)
-        elif result.outcome in ("interrupted", "aborted"):
-            causes.append(Cause(end, result.reason))
+        elif result.outcome == "timeout":
+            causes.append(Cause(end, f"timeout: {result.reason}"))
         else:
-            causes.append(Cause(end, f"{result.outcome}: {result.reason}"))
+            causes.append(Cause(end, result.reason))
+    if not result.stop_sent:
+        causes.append(Cause(end, "the robot link was lost: the final stop was not confirmed"))
     for c in run.robot.truth.collisions:
         causes.append(Cause(c.time, f"collision with {c.other} at {c.time:.1f} s"))
     for t, zone in run.breaches:

@@ -42,6 +42,9 @@ FORMAT = 2
 MAX_JOURNAL_BYTES = 64 << 20
 """A journal longer than this is not one we wrote (a whole A320 mission is ~30 kB)."""
 
+MAX_LINE_BYTES = 64 << 10
+"""The longest line we write is an item record (~300 bytes)."""
+
 PHASES = ("approach", "inspection", "return", "done")
 MOVED_TOLERANCE = 1e-6
 """A checkpoint whose pose in F changed by more than this (m or rad) has moved."""
@@ -144,7 +147,7 @@ class Journal:
         if isinstance(binding, str):  # a bare mission id: a journal for tests and tools
             binding = MissionBinding(binding, "", "", ())
         self.binding = binding
-        flags = os.O_WRONLY | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0) | os.O_APPEND
+        flags = os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0) | os.O_APPEND
         if not append:
             flags |= os.O_TRUNC
         try:
@@ -154,6 +157,8 @@ class Journal:
         if append and keep_bytes is not None:
             os.ftruncate(self._fd, keep_bytes)
         self._size = os.fstat(self._fd).st_size
+        if append and self._size and os.pread(self._fd, 1, self._size - 1) != b"\n":
+            self._append(b"\n")  # a whole last line that lost only its newline
         self._last = MissionProgress()
         if not append:
             self.write(binding.as_record())
@@ -163,7 +168,10 @@ class Journal:
         the journal cut back to its last whole line."""
         if self._fd is None:
             raise JournalWriteError(0, f"journal {self.path} is closed")
-        data = (json.dumps(record, separators=(",", ":"), allow_nan=False) + "\n").encode()
+        self._append((json.dumps(record, separators=(",", ":"), allow_nan=False) + "\n").encode())
+
+    def _append(self, data: bytes) -> None:
+        assert self._fd is not None
         try:
             view = memoryview(data)
             while view:
@@ -229,8 +237,16 @@ class JournalState:
     """Bytes of whole lines: a torn last line starts here and is cut off on append."""
 
 
+MAX_MAGNITUDE = 1e6
+"""No time (s) or coordinate (m) a journal records is larger: anything beyond is not ours."""
+
+
 def _number(v: object) -> bool:
-    return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+    if isinstance(v, bool) or not isinstance(v, int | float):
+        return False
+    if isinstance(v, int):
+        return abs(v) <= MAX_MAGNITUDE  # a 400-digit integer: no float conversion
+    return math.isfinite(v) and abs(v) <= MAX_MAGNITUDE
 
 
 def _str(v: object) -> bool:
@@ -319,7 +335,7 @@ def read_journal(path: Path) -> JournalState:
     elif lines:  # the last line has no newline: a write cut short, or whole but unterminated
         try:
             json.loads(lines[-1])
-        except ValueError:
+        except (ValueError, RecursionError):
             keep -= len(lines[-1])
             lines.pop()
     if not lines:
@@ -333,10 +349,12 @@ def read_journal(path: Path) -> JournalState:
     pose = None
     ended = end_t = None
     for number, raw in enumerate(lines, start=1):
+        if len(raw) > MAX_LINE_BYTES:
+            raise _problem(path, number, f"a line longer than {MAX_LINE_BYTES} bytes")
         try:
             record = json.loads(raw)
-        except ValueError as exc:
-            msg = getattr(exc, "msg", str(exc))
+        except (ValueError, RecursionError) as exc:
+            msg = getattr(exc, "msg", "nested too deeply")
             raise _problem(path, number, f"not a JSON line ({msg})") from None
         if not isinstance(record, dict):
             raise _problem(
@@ -377,6 +395,15 @@ def read_journal(path: Path) -> JournalState:
         if event == "checkpoint-done":
             if cp in completed:
                 raise _problem(path, number, f"checkpoint '{cp}' completed twice")
+            order = [c[0] for c in binding.checkpoints]
+            expected = order[len(completed)] if len(completed) < len(order) else None
+            if cp != expected:
+                raise _problem(
+                    path,
+                    number,
+                    f"checkpoint '{cp}' completed before '{expected}': checkpoints are "
+                    "completed in the mission's order",
+                )
             completed.append(cp)
             checkpoint = cp
             if "pose_a" in record:
@@ -391,8 +418,9 @@ def read_journal(path: Path) -> JournalState:
             truth[cp] = {k: v for k, v in record.items() if k != "event"}
         elif event == "mission-end":
             ended, end_t = record["outcome"], float(record["t"])
-        elif event == "resume":
+        elif event == "resume":  # what a stopped attempt inspected is done again
             ended = end_t = None
+            results = [r for r in results if r.checkpoint in completed]
     assert binding is not None
     # Items of a checkpoint that was not finished are inspected again on resume.
     kept = tuple(r for r in results if r.checkpoint in completed)
@@ -420,4 +448,30 @@ def check_resumable(state: JournalState, mission: Mission, path: Path) -> None:
             f"cannot resume {mission.id} ({mission.source}) from this journal: "
             + "; ".join(differences),
             "journal-mismatch",
+        )
+
+
+RESUME_MARGIN = 60.0
+"""How far (m) from where the nominal parking puts a checkpoint the journal may say it
+was completed: the parking offsets a scenario may give (50 m, any heading) and room."""
+
+
+def check_resume_pose(state: JournalState, mission: Mission, path: Path) -> None:
+    """Refuse a journal whose last checkpoint pose (where the robot will start) cannot be
+    that checkpoint's: farther from it than any parking of the aircraft could put it."""
+    if state.pose_a is None or not state.progress.completed:
+        return
+    cp_id = state.progress.completed[-1]
+    cp = next(c for c in mission.checkpoints if c.id == cp_id)
+    nominal = mission.nominal_placement().pose_to_airport(cp.pose)
+    x, y, _ = state.pose_a
+    reach = RESUME_MARGIN + 2.0 * math.hypot(cp.pose.x, cp.pose.y)  # turned about the nose
+    distance = math.hypot(x - nominal.x, y - nominal.y)
+    if distance > reach:
+        raise _problem(
+            path,
+            0,
+            f"checkpoint '{cp_id}' is recorded completed at ({x:.1f}, {y:.1f}) in A, "
+            f"{distance:.0f} m from where it can be (at most {reach:.0f} m)",
+            "journal-pose",
         )

@@ -145,6 +145,9 @@ class RunResult:
     events: list[Event]
     duration: float
     traceback: str | None = None
+    stop_sent: bool = True
+    """False when the robot link failed even for the stop (the base's own watchdog must
+    then brake it: ARCHITECTURE §8)."""
 
 
 TickHook = Callable[[float, SensorFrame, VelocityCommand, "Runtime"], None]
@@ -185,6 +188,7 @@ class Runtime:
         self.operator = operator or (lambda t: OperatorRequests())
         self.on_tick = on_tick
         self.stop = stop if stop is not None else StopRequest()
+        self.stop_failures: list[str] = []
         self._timer: Callable[[], float] = getattr(clock, "tick_timer", time.perf_counter)
         self.max_missed_deadlines = max_missed_deadlines
         self._missed_in_a_row = 0
@@ -343,7 +347,10 @@ class Runtime:
         finally:
             if freeze:
                 gc.unfreeze()  # the next run in this process may collect this one's objects
-            self.robot.send(VelocityCommand.stop())
+            unsent = self._send_stop()
+        if unsent is not None:
+            self.stop_failures.append(unsent)
+            self.events.append(Event(self.clock.now(), "link-lost", {"reason": unsent}))
         progress = self._get(PROGRESS.name)
         return RunResult(
             outcome=outcome,
@@ -353,13 +360,25 @@ class Runtime:
             events=self.events,
             duration=self.clock.now() - start,
             traceback=trace,
+            stop_sent=not self.stop_failures,
         )
+
+    def _send_stop(self) -> str | None:
+        """Send the robot a stop; why it could not be sent (a lost link), if it could not.
+        Never raises: a stop is attempted whatever else failed."""
+        try:
+            self.robot.send(VelocityCommand.stop())
+        except Exception as exc:  # the link itself is what failed
+            return f"stop not confirmed: sending it raised {exc!r}"
+        return None
 
     def _stop_safely(self, now: float, kind: str, reason: str) -> None:
         """Latch a fault stop in the safety layer, send the robot a stop, log the event."""
         self.safety.fault(now, reason)
-        self.robot.send(VelocityCommand.stop())
-        self.events.append(Event(now, kind, {"reason": reason}))
+        unsent = self._send_stop()
+        if unsent is not None:
+            self.stop_failures.append(unsent)
+        self.events.append(Event(now, kind, {"reason": reason, "stop_sent": unsent is None}))
 
     def _loop(self, start: float, max_time: float, freeze: bool) -> tuple[str, str, str | None]:
         """The ticks of :meth:`run`: (outcome, reason, traceback of a crashed tick)."""

@@ -293,3 +293,72 @@ def test_item_results_and_truth_survive_a_resume(tmp_path):
     cp1 = run.checkpoints[0]
     assert cp1.resumed and cp1.reached
     assert math.isclose(cp1.position_error, 0.031) and cp1.time == 18.0
+
+
+def test_an_unterminated_line_gets_its_newline_before_the_next_record(tmp_path):
+    path = _write_journal(tmp_path, _lines(_binding(), *CP1_DONE).rstrip("\n"))
+    state = read_journal(path)
+    journal = Journal(path, _binding(), append=True, keep_bytes=state.keep_bytes)
+    journal.write({"event": "resume", "t": 0.0})
+    journal.close()
+    again = read_journal(path)  # every line whole: the resume record did not glue on
+    assert again.progress.completed == ("CP1",)
+    assert path.read_text().splitlines()[-1] == '{"event":"resume","t":0.0}'
+
+
+def _item(checkpoint: str, stamp: float, detected: bool, stale: bool) -> dict:
+    item = ItemResult(checkpoint, "i", stamp, detected, "ptz", 0.0, 0.0, (1.0, 2.0, 0.0), stale)
+    fields = {k: getattr(item, k) for k in ItemResult.__dataclass_fields__}
+    return {"t": stamp, "event": "item", **fields, "pose_f": [1.0, 2.0, 0.0]}
+
+
+def test_an_attempt_stopped_before_its_checkpoint_was_done_leaves_no_result(tmp_path):
+    """CP2's item judged stale, the run stopped, resumed, CP2 inspected again and done:
+    only the second attempt's result stands."""
+    path = _write_journal(
+        tmp_path,
+        _lines(
+            _binding(),
+            *CP1_DONE,
+            {"t": 20.0, "event": "checkpoint-start", "checkpoint": "CP2"},
+            _item("CP2", 21.0, False, True),
+            {"t": 22.0, "event": "interrupted", "reason": "interrupted by SIGTERM at 22.0 s"},
+            {"t": 0.0, "event": "resume"},
+            _item("CP2", 5.0, True, False),
+            {"t": 6.0, "event": "checkpoint-done", "checkpoint": "CP2"},
+        ),
+    )
+    results = read_journal(path).progress.results
+    assert [(r.checkpoint, r.detected) for r in results] == [("CP2", True)]
+
+
+@pytest.mark.parametrize(
+    ("records", "expected"),
+    [
+        (
+            [{"t": 1.0, "event": "checkpoint-done", "checkpoint": "CP2"}],
+            "checkpoint 'CP2' completed before 'CP1'",
+        ),
+        ([{"t": 10**400, "event": "phase", "phase": "return"}], "field 't' must be a number"),
+        ([{"t": 1e300, "event": "phase", "phase": "return"}], "field 't' must be a number"),
+        (
+            [
+                {"t": 1.0, "event": "checkpoint-done", "checkpoint": "CP1", "pose_a": [1e5, 0, 0]},
+            ],
+            "checkpoint 'CP1' is recorded completed at (100000.0, 0.0)",
+        ),
+    ],
+    ids=["out-of-order", "400-digit-integer", "huge-float", "pose-far-away"],
+)
+def test_impossible_journals_are_refused(tmp_path, capsys, records, expected):
+    _write_journal(tmp_path / "out", _lines(_binding(), *records))
+    code, text = _resume(tmp_path / "out", capsys)
+    assert code == 2, text
+    assert expected in text
+
+
+def test_a_deeply_nested_line_is_refused(tmp_path, capsys):
+    binding = json.dumps(_binding().as_record())
+    _write_journal(tmp_path / "out", binding + "\n" + "[" * 100_000 + "]" * 100_000 + "\n")
+    code, text = _resume(tmp_path / "out", capsys)
+    assert code == 2 and "journal.jsonl:2:" in text

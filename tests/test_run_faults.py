@@ -335,3 +335,101 @@ def test_a_latched_bumper_is_the_first_cause(tmp_path):
     assert "bumper" in run.first_cause
     assert "waiting for an operator reset" in run.first_cause
     assert run.last_commands[-1][1].v == 0.0
+
+
+def test_a_lost_link_ends_the_run_and_says_the_stop_was_not_confirmed():
+    """The robot's send raises (bus-off) from 2 s on: no traceback escapes the run, which
+    ends failed, and the report says the stop could not be confirmed."""
+    from sim2d.robot import SimRobot
+
+    class LostLink(SimRobot):
+        def send(self, command):
+            if self.time > 2.0:
+                raise ConnectionError("bus-off")
+            super().send(command)
+
+    scenario = load_scenario(LAB_SCENARIO)
+    run = dry_run(scenario, robot=LostLink(scenario), max_time=10.0)
+    assert run.result.outcome == "failed" and "bus-off" in run.result.reason
+    assert not run.result.stop_sent
+    assert any("stop was not confirmed" in c.text for c in run.causes)
+    assert any(e.kind == "link-lost" for e in run.result.events)
+
+
+def test_a_signal_before_the_run_starts_changes_nothing(tmp_path, capsys, monkeypatch):
+    import executive.dryrun as dryrun
+
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "metrics.json").write_text('{"kept": true}')
+    compile_mission = dryrun.compile_mission
+
+    def compile_then_signal(*args, **kwargs):
+        os.kill(os.getpid(), signal.SIGTERM)  # arrives while the mission compiles
+        return compile_mission(*args, **kwargs)
+
+    monkeypatch.setattr(dryrun, "compile_mission", compile_then_signal)
+    code, text = _cli(capsys, "dry-run", str(LAB), "--out", str(out), "--quiet")
+    assert code == 143
+    assert "before the run started; nothing changed" in text
+    assert (out / "metrics.json").read_text() == '{"kept": true}'
+    assert not (out / "journal.jsonl").exists()
+
+
+def test_a_successful_run_whose_report_cannot_be_written_exits_1(tmp_path, monkeypatch, capsys):
+    import executive.dryrun as dryrun
+    import executive.report as report
+
+    monkeypatch.setattr(dryrun, "judge", lambda run: [])  # the run itself succeeds
+
+    def full(run, out):
+        raise OSError(28, "No space left on device", str(out / "metrics.json"))
+
+    monkeypatch.setattr(report, "write_report", full)
+    out = tmp_path / "run"
+    code, text = _cli(capsys, "dry-run", str(LAB), "--out", str(out), "--quiet", "--max-time", "1")
+    assert code == 1
+    assert "succeeded" in text and "disk full while writing" in text
+
+
+def test_the_scenarios_mission_is_compared_as_a_file_not_a_string(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(LAB_SCENARIO.parent)
+    out = tmp_path / "run"
+    code, text = _cli(
+        capsys,
+        "dry-run",
+        "../visual-servoing.xml",
+        "--scenario",
+        LAB_SCENARIO.name,
+        "--out",
+        str(out),
+        "--quiet",
+        "--max-time",
+        "1",
+    )
+    assert code == 1, text  # a 1 s run times out; it is not refused as another mission
+    assert json.loads((out / "metrics.json").read_text())["outcome"] == "timeout"
+
+
+def test_an_ignored_sighup_stays_ignored(tmp_path):
+    """Started under nohup (SIGHUP ignored): a hang-up does not end the run; SIGTERM does."""
+    out = tmp_path / "run"
+    run = subprocess.Popen(
+        [sys.executable, "-m", "executive.cli", "dry-run", str(LAB), "--out", str(out), "--quiet"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=REPO,
+        preexec_fn=lambda: signal.signal(signal.SIGHUP, signal.SIG_IGN),
+    )
+    try:
+        _wait_for(out / "journal.jsonl", '"checkpoint-start"', run)
+        run.send_signal(signal.SIGHUP)
+        _wait_for(out / "journal.jsonl", '"checkpoint-done"', run)  # it drives on
+        run.send_signal(signal.SIGTERM)
+        stdout, stderr = run.communicate(timeout=120)
+    finally:
+        if run.poll() is None:
+            run.kill()
+    assert run.returncode == 143, stdout + stderr
+    assert "SIGHUP" not in stdout + stderr
