@@ -157,6 +157,7 @@ def _output_file_problem(out: Path, suffixes: tuple[str, ...]) -> str | None:
 def cmd_sim_view(args: argparse.Namespace) -> int:
     import math
 
+    from executive.core.files import produce_atomic
     from sim2d.robot import SimRobot
     from sim2d.view import render_world
 
@@ -175,8 +176,9 @@ def cmd_sim_view(args: argparse.Namespace) -> int:
     robot = SimRobot(scenario)
     if at > 0:
         robot.advance(at)
-    out = render_world(robot, args.out)
-    print(f"wrote {out}")
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    produce_atomic(args.out, lambda tmp: render_world(robot, tmp))
+    print(f"wrote {args.out}")
     return EXIT_OK
 
 
@@ -447,8 +449,10 @@ def cmd_show(args: argparse.Namespace) -> int:
         out = args.out or Path(f"{args.mission.stem}.{fmt}")
         if out.suffix != f".{fmt}":
             out = out.with_suffix(f".{fmt}")
+        from executive.core.files import produce_atomic
+
         out.parent.mkdir(parents=True, exist_ok=True)
-        export.render(root, out)
+        produce_atomic(out, lambda tmp: export.render(root, tmp))
         print(f"wrote {out}")
         return EXIT_OK
     if fmt == "ascii":

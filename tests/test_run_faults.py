@@ -433,3 +433,24 @@ def test_an_ignored_sighup_stays_ignored(tmp_path):
             run.kill()
     assert run.returncode == 143, stdout + stderr
     assert "SIGHUP" not in stdout + stderr
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["sim-view", str(LAB_SCENARIO), "--out", "{out}"],
+        ["show", str(LAB), "--format", "png", "--out", "{out}"],
+        ["show", str(LAB), "--out", "{out}"],
+    ],
+    ids=["sim-view", "show-png", "show-ascii"],
+)
+def test_pictures_and_trees_are_written_whole_and_never_through_a_link(tmp_path, capsys, argv):
+    victim = tmp_path / "victim.png"
+    victim.write_bytes(b"precious")
+    out = tmp_path / "picture.png"
+    out.symlink_to(victim)
+    code, _ = _cli(capsys, *(a.replace("{out}", str(out)) for a in argv))
+    assert code == 0
+    assert victim.read_bytes() == b"precious"
+    assert not out.is_symlink() and out.stat().st_size > 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["picture.png", "victim.png"]

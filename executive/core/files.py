@@ -20,6 +20,7 @@ import errno
 import os
 import stat
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
 
 from executive.core.problems import NotRegularFileError, open_regular
@@ -89,6 +90,23 @@ def write_atomic(path: Path, data: bytes) -> None:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise
+
+
+def produce_atomic(path: Path, produce: Callable[[Path], object]) -> None:
+    """Let ``produce`` write a file (a drawing library that wants a path) at a fresh
+    temporary name beside ``path``, then rename it over ``path``: the same guarantees as
+    :func:`write_atomic` (whole or nothing; a symbolic link at ``path`` is replaced, not
+    followed)."""
+    folder = tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent)
+    tmp = Path(folder) / path.name
+    try:
+        produce(tmp)
+        os.replace(tmp, path)
+    finally:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        with contextlib.suppress(OSError):
+            os.rmdir(folder)
 
 
 def remove_if_present(path: Path) -> None:
