@@ -45,10 +45,14 @@ updates are the joint update):
   first whole views after a long partial one cannot turn noise into speed).
 
 Another shape assigned to a line track (the wall seen together with something against
-it: a centroid off the line by an unknown amount), and a blob bigger than
-``max_blob_size`` (a part of a large structure, the aircraft's, whose visible part changes
-with the view) only re-anchor the track, on both axes: they say where it is, not how it
-moves. So does the
+it: a centroid off the line by an unknown amount), a blob bigger than ``max_blob_size``
+(a part of a large structure, the aircraft's, whose visible part changes with the view),
+and a cluster of such a size of another kind than the track's last one (the middle of a
+face, then the centroid of an L: other points of the object) only re-anchor the track,
+on both axes: they say where it is, not how it moves. A circle track seen, cut by
+something in front, as another shape or with another radius (a gear leg's arc cut
+short and flattened into a line, its middle on the robot's side of the centre) is not
+measured at all: it is kept alive and its filter only predicts. So does the
 next view after such an anchor (for a line, across it): its difference from the anchor
 is the difference between two views, not a motion (a track alternating between a wall
 and a blob of the wall with a wheel against it).
@@ -323,29 +327,38 @@ class ObstacleTracker:
         r_xy = (across - along) * normal[:, 0] * normal[:, 1]
         r_yy = across * normal[:, 1] ** 2 + along * direction[:, 1] ** 2
         rows, cols = self._associate(z, r_xx, r_xy, r_yy)
-        # no measurement of motion, only a new anchor: a view of another kind than the
-        # last one (the middle of a face, then the centroid of an L or the centre of a
-        # fitted arc: other points of the object), a line track seen as another shape
+        # no measurement of motion, only a new anchor: a view of a big object of another
+        # kind than the last one (the middle of a face, then the centroid of an L or the
+        # centre of a fitted arc: other points of it), a line track seen as another shape
         # (the wall with something against it), or a big blob (part of a large structure,
         # its visible part changing)
         kind = clusters.kind[cols]
         not_circle = ~circle_track[rows, 0]
-        anchor = (not_circle & (kind != self.last_kind[rows])) | (line_track[rows] & ~is_line[cols])
-        anchor |= (kind == BLOB) & (clusters.size[cols] > p.max_blob_size)
+        big = clusters.size[cols] > p.max_blob_size
+        changed = kind != self.last_kind[rows]
+        anchor = (not_circle & changed & big) | (line_track[rows] & ~is_line[cols])
+        anchor |= (kind == BLOB) & big
         # lines on any track but a circle's are measured across the line, and along it only
-        # when seen whole
-        by_line = not_circle & is_line[cols] & ~anchor
+        # when seen whole (a small object's change of kind, a trolley turning from its face
+        # to its corner, is a point measurement as before: its points differ by less than
+        # the centroid's variance allows for)
+        by_line = not_circle & is_line[cols] & (line_track[rows] | ~changed) & ~anchor
         # the view after an anchor is another view of the object: its difference from
         # the anchor is no motion either (a track alternating between a wall and a blob)
         again = self.anchored[rows] & ~anchor
         anchor |= again & ~by_line
         by_line_again = again & by_line
         self.anchored[rows] = anchor & ~again
-        # a circle track seen as another shape, or with another radius (a walker's arc cut
-        # short, flattened into a line): its centroid is off the centre by up to the
-        # radius, always on the robot's side: however weighted, it would drag the track
-        # towards the robot. The track is seen (kept alive), its filter only predicts.
-        shape_off = circle_track[rows, 0] & (~is_circle[cols] | off_radius[rows, cols])
+        # a circle track seen, cut by something in front, as another shape or with another
+        # radius (a gear leg's arc cut short, flattened into a line): its centroid is off
+        # the centre by up to the radius, always on the robot's side: however weighted, it
+        # would drag the track towards the robot. The track is seen (kept alive), its
+        # filter only predicts.
+        shape_off = (
+            circle_track[rows, 0]
+            & (~is_circle[cols] | off_radius[rows, cols])
+            & clusters.occluded[cols]
+        )
         point = ~by_line & ~anchor & ~shape_off
         self._correct(rows[point], z[cols[point]], r_pair[rows[point], cols[point]])
         for axis in np.eye(2):
