@@ -28,12 +28,13 @@ from behaviours.controllers.avoidance import (
     AvoidObstacle,
     obstacle_in_airport,
 )
-from behaviours.keys import OBSTACLES, POSE, PROGRESS, MissionProgress
+from behaviours.keys import FEATURES, OBSTACLES, POSE, PROGRESS, MissionProgress
 from executive.compiler import CompileOptions, compile_mission
 from executive.core.frames import AircraftPlacement, Pose2, wrap_angle
 from executive.core.geometry import to_shapely
 from executive.core.model import Frame
 from executive.core.records import (
+    FeatureObservations,
     Obstacles,
     OperatorRequests,
     PoseEstimate,
@@ -171,9 +172,8 @@ class AvoidanceSample:
     clearance: float
 
 
-FEATURE_LOSS_RADIUS = 1.5
-"""Feature loss is counted within this distance (m) of the checkpoint being worked on,
-where its camera should see the target."""
+CAMERA_CONTROLLERS = ("servo", "correct", "inspect")
+"""Controllers (by name) during which a checkpoint's camera must see its features."""
 
 TRACK_MATCH_RADIUS = 1.0
 """A track within this distance (m) of a mover's true centre is taken to be that mover."""
@@ -301,9 +301,10 @@ class _Watcher:
         self.final_placement: AircraftPlacement | None = None
         self.journal: Journal | None = None
         self._last_pose: PoseEstimate | None = None
-        self.feature_loss: dict[str, float] = {}
+        self.feature_loss: dict[str, float] = dict.fromkeys(mission.platform.cameras, 0.0)
         self._checkpoints = {c.id: c for c in mission.checkpoints}
-        self._camera_period = {c.id: 1.0 / c.rate_hz for c in mission.platform.cameras.values()}
+        self._bb = py_trees.blackboard.Client(name="dry-run judge")
+        self._bb.register_key(key=FEATURES.name, access=py_trees.common.Access.READ)
         self._rigs = {unit: camera_ids(mission.platform, unit) for unit in mission.platform.cameras}
 
     def footprint(self, pose: Pose2) -> ShapelyPolygon:
@@ -344,7 +345,7 @@ class _Watcher:
         if isinstance(obstacles, Obstacles):
             self._judge_tracks(t, obstacles, true)
         if isinstance(progress, MissionProgress):
-            self._judge_feature_loss(frame, progress, true)
+            self._judge_feature_loss(self._features(), progress, rt.controller)
         foot = self.footprint(true)
         inside = {zid for zid, geom in self.zones if geom.intersects(foot)}
         for zid in inside - self._in_zone:
@@ -483,30 +484,33 @@ class _Watcher:
                     sample.velocity_error = round(math.hypot(vx - mvx, vy - mvy), 4)
             self.tracks.append(sample)
 
+    def _features(self) -> FeatureObservations | None:
+        """What the executive's feature sensing kept this tick (fresh images only)."""
+        try:
+            features = self._bb.get(FEATURES.name)
+        except KeyError:
+            return None
+        return features if isinstance(features, FeatureObservations) else None
+
     def _judge_feature_loss(
-        self, frame: SensorFrame, progress: MissionProgress, true: Pose2
+        self, features: FeatureObservations | None, progress: MissionProgress, controller: str
     ) -> None:
-        """Near a checkpoint that names its camera, count the time (at TRUTH_RATE_HZ) that
-        camera had no fresh detection of the checkpoint's features: frozen, dropped out,
-        occluded or out of view all count (ARCHITECTURE §9, feature-loss time)."""
+        """While a checkpoint's camera is in use (visual servoing, correcting the camera
+        angle, inspecting), count the time (at TRUTH_RATE_HZ) that camera had no fresh
+        detection of the checkpoint's features: frozen, dropped out, occluded or out of
+        view all count (ARCHITECTURE §9, feature-loss time). Fresh is what the
+        executive's own feature sensing kept (:class:`FeatureObservations`)."""
         cp = self._checkpoints.get(progress.checkpoint or "")
         if cp is None or cp.camera is None or cp.id in progress.completed:
             return
-        goal = self.true.pose_to_airport(cp.pose)
-        if math.hypot(goal.x - true.x, goal.y - true.y) > FEATURE_LOSS_RADIUS:
+        if not any(word in controller for word in CAMERA_CONTROLLERS):
             return
         aircraft = self.scenario.mission.aircraft
         wanted = {aircraft.items[i].feature for i in cp.items if i in aircraft.items}
         if cp.target is not None:
             wanted.add(cp.target)
-        limit = 3.0 * self._camera_period.get(cp.camera, 0.1)
-        seen = any(
-            frame.stamp - image.stamp <= limit
-            and any(d.feature in wanted for d in image.detections)
-            for rig, image in frame.cameras.items()
-            if rig in self._rigs.get(cp.camera, ())
-        )
-        self.feature_loss.setdefault(cp.camera, 0.0)
+        fresh = features.by_camera if features is not None else {}
+        seen = any(d.feature in wanted for rig in self._rigs[cp.camera] for d in fresh.get(rig, ()))
         if not seen:
             self.feature_loss[cp.camera] += 1.0 / TRUTH_RATE_HZ
 

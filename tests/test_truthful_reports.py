@@ -69,7 +69,10 @@ def test_frozen_cameras_fail_the_run_and_say_which(tmp_path, capsys, cameras, at
     assert int(match.group(2)) == stale_items > 0
     assert metrics["stale_sensors"]["camera:ptz"][0]["until"] is None
     assert metrics["first_cause"] in summary
-    assert set(metrics["feature_loss_s"]) == {"front"}
+    loss = metrics["feature_loss_s"]
+    assert set(loss) == {"front", "rear", "ptz"}  # every camera unit, used or not
+    if "front-left" in cameras:  # the checkpoints' camera, frozen while it is in use
+        assert loss["front"] > 0.0
 
 
 def test_a_drifting_pose_without_gps_is_flagged_and_fails(tmp_path, capsys):
