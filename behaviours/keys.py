@@ -67,6 +67,30 @@ class ItemResult:
     stale: bool = False
 
 
+@dataclass(frozen=True, slots=True)
+class ServoStatus:
+    """The visual servoing of the current navigation (issue 13), written every tick its
+    guard runs: ``mode`` is ``pbvs``, ``ibvs`` or ``lost`` (no camera sees enough real
+    points: metric go-to-goal); ``camera`` the camera that drives the base (its unit
+    ``unit``) with ``real`` detected and ``reconstructed`` points of ``target`` in the
+    augmented image; ``reliability`` per camera; ``reconstructed_s`` the time this target
+    has been servoed on an image with reconstructed points, ``servo_s`` by mode."""
+
+    stamp: float
+    checkpoint: str
+    target: str
+    mode: str
+    unit: str | None = None
+    camera: str | None = None
+    real: int = 0
+    reconstructed: int = 0
+    reliability: tuple[tuple[str, float], ...] = ()
+    reconstructed_s: float = 0.0
+    servo_s: tuple[tuple[str, float], ...] = ()
+    switches: tuple[tuple[float, str], ...] = ()
+    """Every task switch of this servo (mode or driving camera) with its time and reason."""
+
+
 SENSOR_FRAME = Key("/sensors/frame", SensorFrame)
 POSE = Key("/state/pose", PoseEstimate)
 OBSTACLES = Key("/state/obstacles", Obstacles)
@@ -74,7 +98,8 @@ FEATURES = Key("/state/features", FeatureObservations)
 COMMAND = Key("/command", VelocityCommand)
 PROGRESS = Key("/mission/progress", MissionProgress)
 OPERATOR = Key("/operator", OperatorRequests)
+SERVO = Key("/state/servo", ServoStatus)
 
-ALL_KEYS = (SENSOR_FRAME, POSE, OBSTACLES, FEATURES, COMMAND, PROGRESS, OPERATOR)
+ALL_KEYS = (SENSOR_FRAME, POSE, OBSTACLES, FEATURES, COMMAND, PROGRESS, OPERATOR, SERVO)
 EXTERNAL_KEYS = (SENSOR_FRAME, OPERATOR)
 """Written by the runtime before each tick, not by a behaviour."""

@@ -68,6 +68,15 @@ from behaviours.controllers.motion import (
     GoToGoalController,
     HoldStill,
 )
+from behaviours.controllers.servo import (
+    IBVS,
+    PBVS,
+    FeaturesLostRecently,
+    FeaturesVisible,
+    ServoParams,
+    ServoSession,
+    VisualServoing,
+)
 from behaviours.goals import Goal
 from behaviours.guards.conditions import (
     EmergencyStop,
@@ -86,7 +95,7 @@ from executive.core.frames import AircraftPlacement, Pose2
 from executive.core.geometry import to_shapely
 from executive.core.model import CameraKind, Checkpoint, Frame, Mission, Waypoint
 from executive.core.problems import InvalidInputError, Problem, SourceLocation
-from executive.core.records import VelocityCommand
+from executive.core.records import VelocityCommand, camera_ids
 
 Status = py_trees.common.Status
 
@@ -96,6 +105,32 @@ to the goal is on the way: passing it closer would trip the e-stop."""
 
 NEAR_AIRFRAME = 3.0
 """Within this distance (m) of the aircraft the inspection speed applies."""
+
+SERVO_START = 1.0
+"""Visual servoing starts this far (m) behind the checkpoint on its heading line, reached
+by metric go-to-goal: the camera's straight approach then keeps the base's heading (four
+controls, five configuration variables: behaviours/controllers/servo.py)."""
+
+SERVO_START_TOLERANCE = (0.02, math.radians(0.5))
+"""Position (m) and heading (rad) tolerances of the servo start: a flat target seen
+face-on hardly tells a sideways offset of the camera from a turn, so the lateral offset
+the servo starts with is, to first order, the one it ends with."""
+
+SERVO_LOST_GRACE = 4.0
+"""Seconds a servo navigation holds still for lost features before metric go-to-goal."""
+
+SERVO_SPEED = 0.15
+"""Top speed (m/s) of visual servoing: the heading settles within a short run."""
+
+CAMERA_ANGLE_THRESHOLD = math.radians(0.25)
+"""Correct camera angle acts when the measured pan is this far from the pan the
+checkpoint's pose needs (it settles to a fifth of it)."""
+
+SERVO_VERIFIED = frozenset({"lab-mockup"})
+"""Aircraft types whose servo checkpoints are reached by visual servoing by default
+(``CompileOptions.servo`` None): those where the sim2d end-to-end runs meet 2 cm and
+0.5 deg at every servo checkpoint. Elsewhere the checkpoints keep metric go-to-goal and a
+``servo-metric`` warning until the same is shown there."""
 
 
 class GuardSelector(py_trees.composites.Selector):
@@ -214,6 +249,10 @@ class CompileOptions:
     """Builds the avoidance controller (default :class:`AvoidObstacle`, the spiral)."""
     register_aircraft: bool = True
     """Register the aircraft from the laser returns (False: trust the nominal placement)."""
+    servo: bool | None = None
+    """Reach checkpoints with a servo target by visual servoing (issue 13). None: on the
+    aircraft types of :data:`SERVO_VERIFIED`; True: everywhere; False: never (metric)."""
+    servo_params: ServoParams | None = None
 
 
 @dataclass
@@ -224,6 +263,7 @@ class CompiledMission:
     warnings: list[Problem] = field(default_factory=list)
     goto_nodes: list[GoToGoalController] = field(default_factory=list)
     avoidance_policies: list[AvoidancePolicy] = field(default_factory=list)
+    servo_sessions: list[ServoSession] = field(default_factory=list)
 
 
 def _warn(where: SourceLocation, code: str, message: str) -> Problem:
@@ -240,6 +280,7 @@ class _Builder:
         self.warnings: list[Problem] = []
         self.goto_nodes: list[GoToGoalController] = []
         self.avoidance_policies: list[AvoidancePolicy] = []
+        self.servo_sessions: list[ServoSession] = []
         nav = mission.navigation
         platform = mission.platform
         self.checkpoint_tolerance = (
@@ -282,6 +323,7 @@ class _Builder:
         goal: Goal,
         use_heading: bool,
         tolerance: tuple[float, float | None],
+        servo: ServoSession | None = None,
     ) -> py_trees.behaviour.Behaviour:
         safety = self.mission.safety
         params = dataclasses.replace(
@@ -313,6 +355,7 @@ class _Builder:
                     else []
                 ),
                 *self.avoidance(label, goal),
+                *(self.servo_branches(label, servo) if servo is not None else []),
                 GuardedBranch(
                     f"reached {label}",
                     Reached(goal, tolerance[0], tolerance[1] if use_heading else None),
@@ -358,6 +401,30 @@ class _Builder:
             GuardedBranch(f"avoid {label}", AvoidanceTrigger(policy, SPIRAL), spiral),
         ]
 
+    def servo_branches(self, label: str, session: ServoSession) -> list[GuardedBranch]:
+        """[features visible (measured or reconstructed)?] -> visual servoing, IBVS above
+        PBVS (one session decides which holds, ARCHITECTURE §5)."""
+        modes = (IBVS, PBVS) if session.method == PBVS else (IBVS,)
+        branches = [
+            GuardedBranch(
+                f"{mode} {label}", FeaturesVisible(session, mode), VisualServoing(session, mode)
+            )
+            for mode in modes
+        ]
+        branches.append(
+            GuardedBranch(
+                f"wait for features {label}",
+                FeaturesLostRecently(session, SERVO_LOST_GRACE),
+                HoldStill(f"hold: {session.target.id} lost"),
+            )
+        )
+        return branches
+
+    def servo_enabled(self) -> bool:
+        if self.options.servo is not None:
+            return self.options.servo
+        return self.mission.aircraft.type in SERVO_VERIFIED
+
     def registrar(self) -> AircraftRegistrar | None:
         """The laser registration of the aircraft, when asked for and possible."""
         if not self.registers:
@@ -384,31 +451,66 @@ class _Builder:
         for k, (vx, vy) in enumerate(cp.via, start=1):
             via = Goal(Pose2(vx, vy, 0.0), Frame.AIRCRAFT, self.placement)
             children.append(self.navigate(f"{cp.id} via {k}", via, False, (0.3, None)))
+        servo: ServoSession | None = None
+        if cp.camera is not None and cp.target is not None:
+            method = (cp.servo or m.aircraft.features[cp.target].servo).value
+            if self.servo_enabled():
+                servo = ServoSession(
+                    cp.id,
+                    m.aircraft.features[cp.target],
+                    cp.pose,
+                    m.platform,
+                    m.aircraft.origin_height,
+                    method,
+                    self.options.servo_params
+                    or ServoParams(
+                        max_speed=min(m.navigation.inspection_speed, SERVO_SPEED),
+                        max_omega=m.platform.max_angular_speed / 2,
+                    ),
+                )
+                self.servo_sessions.append(servo)
+                h = cp.pose.theta  # F is mirrored, but +x_R still maps to (cos h, sin h)
+                start = Pose2(
+                    cp.pose.x - SERVO_START * math.cos(h), cp.pose.y - SERVO_START * math.sin(h), h
+                )
+                children.append(
+                    self.navigate(
+                        f"{cp.id} servo start",
+                        Goal(start, Frame.AIRCRAFT, self.placement),
+                        True,
+                        SERVO_START_TOLERANCE,
+                    )
+                )
+            else:
+                self.warnings.append(
+                    _warn(
+                        cp.where,
+                        "servo-metric",
+                        f"checkpoint '{cp.id}': visual servoing ({method}) on '{cp.target}' is "
+                        f"not yet verified on {m.aircraft.type} (2 cm and 0.5 deg at every "
+                        "servo checkpoint in sim2d); the checkpoint is reached by metric "
+                        "go-to-goal",
+                    )
+                )
         reach = len(children)  # a pause from here on resumes by reaching the checkpoint
         children.append(
-            self.navigate(cp.id, self.checkpoint_goal(cp), True, self.checkpoint_tolerance)
+            self.navigate(
+                cp.id, self.checkpoint_goal(cp), True, self.checkpoint_tolerance, servo=servo
+            )
         )
         if cp.camera is not None and cp.target is not None:
             camera = m.platform.cameras[cp.camera]
-            limit = min(camera.pan_limits[1], -camera.pan_limits[0]) - math.radians(5.0)
             children.append(
                 CorrectCameraAngle(
                     camera,
+                    camera_ids(m.platform, cp.camera),
                     m.aircraft.features[cp.target],
+                    cp.pose,
                     m.aircraft.origin_height,
-                    threshold=max(limit, math.radians(10.0)),
+                    threshold=CAMERA_ANGLE_THRESHOLD,
                     max_omega=m.platform.max_angular_speed / 2,
+                    servoed=servo is not None,
                     name=f"correct {cp.camera} angle",
-                )
-            )
-            method = (cp.servo or m.aircraft.features[cp.target].servo).value
-            self.warnings.append(
-                _warn(
-                    cp.where,
-                    "servo-metric",
-                    f"checkpoint '{cp.id}': visual servoing ({method}) on '{cp.target}' is not "
-                    "available in this version; the checkpoint is reached by metric "
-                    "go-to-goal",
                 )
             )
         if cp.items:
@@ -508,6 +610,7 @@ def compile_mission(mission: Mission, options: CompileOptions | None = None) -> 
         builder.warnings,
         builder.goto_nodes,
         builder.avoidance_policies,
+        builder.servo_sessions,
     )
 
 

@@ -28,7 +28,7 @@ from behaviours.controllers.avoidance import (
     AvoidObstacle,
     obstacle_in_airport,
 )
-from behaviours.keys import FEATURES, OBSTACLES, POSE, PROGRESS, MissionProgress
+from behaviours.keys import FEATURES, OBSTACLES, POSE, PROGRESS, SERVO, MissionProgress, ServoStatus
 from executive.compiler import CompileOptions, compile_mission
 from executive.core.frames import AircraftPlacement, Pose2, wrap_angle
 from executive.core.geometry import to_shapely
@@ -251,6 +251,9 @@ class DryRun:
     last_commands: list[tuple[float, VelocityCommand]] = field(default_factory=list)
     journal_error: str | None = None
     stale_sensors: dict[str, tuple[StaleInterval, ...]] = field(default_factory=dict)
+    servo: dict[str, dict[str, object]] = field(default_factory=dict)
+    """Per servo checkpoint: its target, the time servoed by mode and the time on an
+    augmented image with reconstructed points (issue 13), from the ServoStatus key."""
 
     @property
     def succeeded(self) -> bool:
@@ -303,6 +306,7 @@ class _Watcher:
         self._last_pose: PoseEstimate | None = None
         self.feature_loss: dict[str, float] = dict.fromkeys(mission.platform.cameras, 0.0)
         self._checkpoints = {c.id: c for c in mission.checkpoints}
+        self.servo: dict[str, dict[str, object]] = {}
         self._bb = py_trees.blackboard.Client(name="dry-run judge")
         self._bb.register_key(key=FEATURES.name, access=py_trees.common.Access.READ)
         self._rigs = {unit: camera_ids(mission.platform, unit) for unit in mission.platform.cameras}
@@ -327,6 +331,14 @@ class _Watcher:
         progress = rt._get(PROGRESS.name)
         pose = rt._get(POSE.name)
         self._last_pose = pose if isinstance(pose, PoseEstimate) else None
+        servo = rt._get(SERVO.name)
+        if isinstance(servo, ServoStatus):
+            self.servo[servo.checkpoint] = {
+                "target": servo.target,
+                "reconstructed_s": servo.reconstructed_s,
+                **{f"{mode}_s": t for mode, t in servo.servo_s},
+                "switches": [{"t": t, "reason": why} for t, why in servo.switches],
+            }
         if isinstance(progress, MissionProgress) and progress.completed != self.completed_seen:
             for cp_id in progress.completed[len(self.completed_seen) :]:
                 self._judge_checkpoint(cp_id, t, progress)
@@ -711,6 +723,7 @@ def dry_run(
         last_commands=wire.last(),
         journal_error=journal_error,
         stale_sensors=safety.stale_intervals(),
+        servo=watcher.servo,
     )
     run.causes = judge(run)
     return run

@@ -82,6 +82,7 @@ def metrics(run: DryRun) -> dict[str, object]:
         "warnings": run.warnings,
         "resumed_after": list(run.resumed_from),
         "feature_loss_s": run.feature_loss_s,
+        "servo": run.servo,
         "stale_sensors": {
             sensor: [
                 {

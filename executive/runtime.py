@@ -33,6 +33,7 @@ from behaviours.keys import (
     POSE,
     PROGRESS,
     SENSOR_FRAME,
+    SERVO,
     MissionProgress,
 )
 from executive.compiler import CompiledMission, GuardedBranch
@@ -196,7 +197,7 @@ class Runtime:
         self.bb = py_trees.blackboard.Client(name="runtime")
         for key in (SENSOR_FRAME, OPERATOR, COMMAND):
             self.bb.register_key(key=key.name, access=py_trees.common.Access.WRITE)
-        for key in (POSE, OBSTACLES, PROGRESS):
+        for key in (POSE, OBSTACLES, PROGRESS, SERVO):
             self.bb.register_key(key=key.name, access=py_trees.common.Access.READ)
         self.stats = TickStats(self.period)
         self.events: list[Event] = []

@@ -16,7 +16,15 @@ from behaviours.guards.conditions import (
     PoseNotGoodEnough,
     Reached,
 )
-from behaviours.keys import COMMAND, OBSTACLES, POSE, ItemResult, MissionProgress
+from behaviours.keys import (
+    COMMAND,
+    FEATURES,
+    OBSTACLES,
+    POSE,
+    SENSOR_FRAME,
+    ItemResult,
+    MissionProgress,
+)
 from executive.cli import main
 from executive.core.frames import Pose2
 from executive.core.loader import load_mission
@@ -88,27 +96,50 @@ def test_reached_needs_position_and_heading():
 
 
 def test_correct_camera_angle_turns_towards_the_target_then_succeeds():
+    # issue 13: it acts on the *measured* pan against pan* (the pan CP01's own pose needs),
+    # once visual servoing has aimed the unit at the target (tests/test_servo_tree.py)
+    from executive.core.records import (
+        CameraFrame,
+        Detection,
+        FeatureObservations,
+        PanTilt,
+        SensorFrame,
+    )
+
     mission = load_mission(MISSIONS / "a320" / "preflight.xml")
     camera = mission.platform.cameras["front"]
     feature = mission.aircraft.features["static-ports-left"]
+    cp = next(c for c in mission.checkpoints if c.id == "CP01")
     node = CorrectCameraAngle(
-        camera, feature, mission.aircraft.origin_height, math.radians(20), max_omega=0.5
+        camera,
+        ("front-left", "front-right"),
+        feature,
+        cp.pose,
+        mission.aircraft.origin_height,
+        math.radians(0.25),
+        max_omega=0.5,
     )
-    bb = _writer(POSE)
+    bb = _writer(SENSOR_FRAME, FEATURES)
     reader = py_trees.blackboard.Client(name="reader")
     reader.register_key(key=COMMAND.name, access=py_trees.common.Access.READ)
-    # CP01 (6.5, 5.0) faces the ports at heading -90 (F); facing the tail they are to the
-    # robot's right in the mirrored frame F, so the base must turn.
-    for heading, expect in ((-math.pi / 2, S.SUCCESS), (0.0, S.RUNNING)):
-        pose_f = Pose2(6.5, 5.0, heading)
-        bb.set(POSE.name, PoseEstimate(0.0, pose_f, np.eye(3), pose_f, 1.0), overwrite=True)
+    centre = camera.image_width_px / 2
+    dets = tuple(Detection(feature.id, k, centre, 300.0) for k in range(len(feature.points)))
+    for offset, expect in ((0.0, S.SUCCESS), (math.radians(20), S.RUNNING)):
+        node.initialise()
+        pan = node.desired_pan + offset
+        frame = SensorFrame(
+            1.0,
+            cameras={"front-left": CameraFrame(1.0, dets)},
+            pan_tilt={"front": PanTilt(1.0, pan, 0.0)},
+        )
+        bb.set(SENSOR_FRAME.name, frame, overwrite=True)
+        bb.set(FEATURES.name, FeatureObservations(1.0, {"front-left": dets}), overwrite=True)
         node.tick_once()
         assert node.status == expect
         command = reader.get(COMMAND.name)
         assert command.v == 0.0
         if expect == S.RUNNING:
-            pan = node.required_pan(pose_f)
-            assert abs(pan) > math.radians(20) and np.sign(command.omega) == np.sign(pan)
+            assert np.sign(command.omega) == np.sign(offset)
 
 
 def test_an_exception_in_a_tick_stops_the_robot_and_fails_with_the_traceback(tmp_path, monkeypatch):
