@@ -126,11 +126,16 @@ CAMERA_ANGLE_THRESHOLD = math.radians(0.25)
 """Correct camera angle acts when the measured pan is this far from the pan the
 checkpoint's pose needs (it settles to a fifth of it)."""
 
-SERVO_VERIFIED = frozenset({"lab-mockup"})
+SERVO_VERIFIED: frozenset[str] = frozenset()
 """Aircraft types whose servo checkpoints are reached by visual servoing by default
 (``CompileOptions.servo`` None): those where the sim2d end-to-end runs meet 2 cm and
-0.5 deg at every servo checkpoint. Elsewhere the checkpoints keep metric go-to-goal and a
-``servo-metric`` warning until the same is shown there."""
+0.5 deg at every servo checkpoint *and* every other shipped test holds. None yet: the lab
+mock-up meets the bar (tests/test_servo_e2e.py, with ``servo=True``), but leaving
+checkpoint 3 after the perpendicular servo approach, the obstacle tracker sees the fence
+as a 3.5 m blob "on the way" and avoidance engages, which the empty-lab test of issue 12
+forbids; the A320 reaches 2 cm / 0.5 deg at its first servo checkpoints but stalls in
+PBVS at the right wing's leading edge (docs/mission-format.md). Elsewhere checkpoints
+keep metric go-to-goal with a ``servo-metric`` warning that says so."""
 
 
 class GuardSelector(py_trees.composites.Selector):
@@ -487,9 +492,10 @@ class _Builder:
                         cp.where,
                         "servo-metric",
                         f"checkpoint '{cp.id}': visual servoing ({method}) on '{cp.target}' is "
-                        f"not yet verified on {m.aircraft.type} (2 cm and 0.5 deg at every "
-                        "servo checkpoint in sim2d); the checkpoint is reached by metric "
-                        "go-to-goal",
+                        f"not enabled by default on {m.aircraft.type} (not yet shown to meet "
+                        "2 cm and 0.5 deg at every servo checkpoint with every shipped "
+                        "scenario green); the checkpoint is reached by metric go-to-goal "
+                        "(CompileOptions(servo=True) or dry_run(servo=True) to servo)",
                     )
                 )
         reach = len(children)  # a pause from here on resumes by reaching the checkpoint

@@ -603,6 +603,7 @@ def dry_run(
     stop: StopRequest | None = None,
     max_missed_deadlines: int | None = DEFAULT_MAX_MISSED_DEADLINES,
     before_start: Callable[[], None] | None = None,
+    servo: bool | None = None,
 ) -> DryRun:
     """Run the scenario's mission with the executive in sim2d and judge it.
 
@@ -613,6 +614,8 @@ def dry_run(
     judged when they were completed. ``before_start`` is called once the mission is
     compiled and the simulator built, before anything is written: the CLI clears the old
     report there, so a run that cannot start destroys nothing.
+    ``servo`` reaches the checkpoints with a servo target by visual servoing (issue 13;
+    None: the compiler's default, :data:`executive.compiler.SERVO_VERIFIED`).
     """
     mission = scenario.mission
     state: JournalState | None = None
@@ -633,6 +636,7 @@ def dry_run(
         avoidance=avoidance,
         avoider=avoider,
         avoidance_params=avoidance_params,
+        servo=servo,
     )
     compiled = compile_mission(mission, options)
     safety = SafetyLayer(

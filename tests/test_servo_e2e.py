@@ -24,12 +24,12 @@ def _controller_events(run):
 
 @pytest.fixture(scope="module")
 def clear_run():
-    return dry_run(load_scenario(LAB / "clear-apron.xml"))
+    return dry_run(load_scenario(LAB / "clear-apron.xml"), servo=True)
 
 
 @pytest.fixture(scope="module")
 def disturbed_run():
-    return dry_run(load_scenario(LAB / "occlusion-and-camera-fault.xml"))
+    return dry_run(load_scenario(LAB / "occlusion-and-camera-fault.xml"), servo=True)
 
 
 def _assert_accurate(run):

@@ -282,7 +282,7 @@ def test_correct_camera_angle_leaves_a_metric_checkpoint_alone(lab):
 
 
 def test_compiled_lab_tree_servoes_every_servo_checkpoint_without_warning(lab):
-    compiled = compile_mission(lab)
+    compiled = compile_mission(lab, CompileOptions(servo=True))
     assert not [w for w in compiled.warnings if w.code == "servo-metric"]
     assert check_tree(compiled.root) == []
     assert [s.checkpoint for s in compiled.servo_sessions] == ["CP1", "CP2", "CP3"]
@@ -301,7 +301,8 @@ def test_servoing_is_selectable_and_kept_metric_where_not_verified():
     a320 = load_mission(MISSIONS / "a320" / "preflight.xml")
     default = compile_mission(a320, CompileOptions())
     warned = [w for w in default.warnings if w.code == "servo-metric"]
-    assert warned and "not yet verified" in warned[0].message and not default.servo_sessions
+    assert warned and "not enabled by default" in warned[0].message
+    assert not default.servo_sessions
     forced = compile_mission(a320, CompileOptions(servo=True))
     assert not [w for w in forced.warnings if w.code == "servo-metric"]
     assert check_tree(forced.root) == [] and forced.servo_sessions
