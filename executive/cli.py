@@ -224,6 +224,8 @@ def _resume_command(args: argparse.Namespace, scenario: Path) -> str:
         words += ["--max-time", f"{args.max_time:g}"]
     if args.max_missed_deadlines != DEFAULT_MISSED_DEADLINES:
         words += ["--max-missed-deadlines", str(args.max_missed_deadlines)]
+    if args.servo is not None:
+        words.append("--servo" if args.servo else "--no-servo")
     if args.quiet:
         words.append("--quiet")
     return shlex.join([*words, "--resume"])
@@ -417,6 +419,7 @@ def _run(
         max_missed_deadlines=args.max_missed_deadlines or None,
         max_time=args.max_time,
         before_start=before_start,
+        servo=args.servo,
     )
 
 
@@ -535,6 +538,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="continue after the last checkpoint completed in OUT/journal.jsonl",
     )
     dry.add_argument("--quiet", action="store_true", help="no live progress line")
+    dry.add_argument(
+        "--servo",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="visual servoing at the checkpoints that name a servo target (default: only "
+        "on aircraft types whose end-to-end runs meet 2 cm and 0.5 deg; --servo forces it "
+        "on, --no-servo off)",
+    )
     dry.add_argument(
         "--max-time",
         type=float,

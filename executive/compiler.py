@@ -495,7 +495,7 @@ class _Builder:
                         f"not enabled by default on {m.aircraft.type} (not yet shown to meet "
                         "2 cm and 0.5 deg at every servo checkpoint with every shipped "
                         "scenario green); the checkpoint is reached by metric go-to-goal "
-                        "(CompileOptions(servo=True) or dry_run(servo=True) to servo)",
+                        "(walkaround dry-run --servo to servo)",
                     )
                 )
         reach = len(children)  # a pause from here on resumes by reaching the checkpoint
