@@ -377,6 +377,21 @@ def _merge_across_scanners(
 _ANGULAR_NEIGHBOURS = 3
 
 
+def _run_ends(
+    scanner: NDArray[np.integer], first: NDArray[np.integer]
+) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+    """The first (``lo``) and last (``hi``) point of each cluster's run of beams in one
+    scan: clusters start at ``first``; a change of scanner inside a cluster starts a run."""
+    n = len(scanner)
+    lo = np.zeros(n, dtype=bool)
+    lo[first] = True
+    lo[1:] |= scanner[1:] != scanner[:-1]
+    hi = np.zeros(n, dtype=bool)
+    hi[:-1] = lo[1:]
+    hi[-1] = True
+    return lo, hi
+
+
 def occluded(
     points: ScanPoints, kept: BoolArray, order: IntArray, first: IntArray, params: ClusterParams
 ) -> BoolArray:
@@ -389,13 +404,7 @@ def occluded(
     whose centroid (or partial arc) is then biased.
     """
     n = len(order)
-    sc = points.scanner[order]
-    lo = np.zeros(n, dtype=bool)
-    lo[first] = True
-    lo[1:] |= sc[1:] != sc[:-1]
-    hi = np.zeros(n, dtype=bool)
-    hi[:-1] = lo[1:]
-    hi[-1] = True
+    lo, hi = _run_ends(points.scanner[order], first)
     kidx = np.flatnonzero(kept)
     rank = np.cumsum(kept) - 1  # the index in kidx of each kept point
     table = _ratio_table(points.increments, params.incidence_limit, params.gap_scale_limit)
@@ -446,14 +455,7 @@ def line_ends_visible(
     if not is_line.any():
         return visible
     first = start[:-1]
-    n = len(order)
-    sc = points.scanner[order]
-    lo = np.zeros(n, dtype=bool)
-    lo[first] = True
-    lo[1:] |= sc[1:] != sc[:-1]
-    hi = np.zeros(n, dtype=bool)
-    hi[:-1] = lo[1:]
-    hi[-1] = True
+    lo, hi = _run_ends(points.scanner[order], first)
     at = np.concatenate((np.flatnonzero(lo), np.flatnonzero(hi)))
     step = np.concatenate((np.full(lo.sum(), -1), np.full(hi.sum(), 1)))
     cluster = np.searchsorted(start, at, side="right") - 1
