@@ -16,6 +16,7 @@ import io
 import itertools
 import json
 import math
+import warnings
 from dataclasses import asdict
 from pathlib import Path
 from typing import BinaryIO
@@ -220,7 +221,10 @@ def write_report(run: DryRun, out: Path) -> Path:
         ("avoidance.png", avoidance_plot),
     ):
         image = io.BytesIO()
-        if draw(run, image):
+        with warnings.catch_warnings():  # layout hints of a sparse plot are not the user's
+            warnings.filterwarnings("ignore", category=UserWarning, module="matplotlib")
+            drawn = draw(run, image)
+        if drawn:
             _write(out / name, image.getvalue())
     return out
 
