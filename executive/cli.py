@@ -360,6 +360,9 @@ def _dry_run(args: argparse.Namespace, stop: StopRequest) -> int:
         report_error = describe_os_error(exc, getattr(exc, "filename", None) or out)
     for warning in run.warnings:
         print(f"warning: {warning}", file=sys.stderr)
+    for event in run.result.events:
+        if event.kind == "checkpoint-uncertain":
+            print(f"warning: {event.detail['reason']}", file=sys.stderr)
     reached = sum(c.reached for c in run.checkpoints)
     worst = max((c.position_error or 0.0 for c in run.checkpoints), default=0.0)
     verdict = "succeeded" if run.succeeded else f"failed: {run.first_cause}"

@@ -186,8 +186,17 @@ class Journal:
     def resume_from(self, progress: MissionProgress) -> None:
         self._last = progress
 
-    def record(self, t: float, progress: MissionProgress, pose: tuple[float, ...] | None) -> None:
-        """Write what changed since the last call."""
+    def record(
+        self,
+        t: float,
+        progress: MissionProgress,
+        pose: tuple[float, ...] | None,
+        *,
+        sigma_f: float | None = None,
+    ) -> None:
+        """Write what changed since the last call; a completed checkpoint carries the pose
+        (in A) and the estimate's position uncertainty (``sigma_f``, m) it was completed
+        with."""
         last = self._last
         if progress.checkpoint != last.checkpoint and progress.checkpoint is not None:
             self.write(
@@ -203,6 +212,8 @@ class Journal:
             }
             if pose is not None and all(math.isfinite(v) for v in pose):
                 record["pose_a"] = [round(v, 6) for v in pose]
+            if sigma_f is not None and math.isfinite(sigma_f):
+                record["sigma_f"] = round(sigma_f, 4)
             self.write(record)
         if progress.phase != last.phase:
             self.write({"t": round(t, 3), "event": "phase", "phase": progress.phase})
@@ -312,7 +323,7 @@ _FIELDS: dict[str, dict[str, tuple[Check, str]]] = {
     "mission-end": {"t": (_number, "a number"), "outcome": (_str, "a string")},
 }
 _OPTIONAL: dict[str, dict[str, tuple[Check, str]]] = {
-    "checkpoint-done": {"pose_a": (_triple, "three numbers")},
+    "checkpoint-done": {"pose_a": (_triple, "three numbers"), "sigma_f": (_number, "a number")},
     "item": {"stale": (_bool, "true or false")},
 }
 

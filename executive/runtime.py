@@ -163,6 +163,15 @@ def _freeze_long_lived() -> None:
     gc.freeze()
 
 
+def _position_sigma(pose: object) -> float | None:
+    """The estimate's own position uncertainty in F (m, sqrt of the covariance's trace)."""
+    cov = getattr(pose, "covariance_f", None)
+    if cov is None:
+        return None
+    value = float(cov[0, 0] + cov[1, 1])
+    return math.sqrt(value) if math.isfinite(value) and value >= 0.0 else None
+
+
 class Runtime:
     """Runs a compiled mission on a robot at a fixed rate."""
 
@@ -190,6 +199,7 @@ class Runtime:
         self.on_tick = on_tick
         self.stop = stop if stop is not None else StopRequest()
         self.stop_failures: list[str] = []
+        self._completed: tuple[str, ...] = ()
         self._timer: Callable[[], float] = getattr(clock, "tick_timer", time.perf_counter)
         self.max_missed_deadlines = max_missed_deadlines
         self._missed_in_a_row = 0
@@ -300,11 +310,40 @@ class Runtime:
         pose = self._get(POSE.name)
         if isinstance(pose, PoseEstimate):
             self._record_localisation(now, pose)
+        progress = self._get(PROGRESS.name)
+        if not isinstance(progress, MissionProgress):
+            return
+        sigma = _position_sigma(pose)
+        if progress.completed != self._completed:
+            self._flag_uncertain(now, progress.completed[len(self._completed) :], sigma)
+            self._completed = progress.completed
         if self.journal is not None:
-            progress = self._get(PROGRESS.name)
-            if isinstance(progress, MissionProgress):
-                p = getattr(pose, "pose_a", None)
-                self.journal.record(now, progress, None if p is None else (p.x, p.y, p.theta))
+            p = getattr(pose, "pose_a", None)
+            self.journal.record(
+                now, progress, None if p is None else (p.x, p.y, p.theta), sigma_f=sigma
+            )
+
+    def _flag_uncertain(self, now: float, done: tuple[str, ...], sigma: float | None) -> None:
+        """A checkpoint completed while the pose estimate's own position uncertainty (1
+        sigma, in F) exceeds the checkpoint tolerance is an event: on the robot nothing
+        else can tell that it may be far from where it should be (a GPS loss)."""
+        tolerance = self.compiled.mission.navigation.position_tolerance
+        if sigma is None or sigma <= tolerance:
+            return
+        for cp in done:
+            self.events.append(
+                Event(
+                    now,
+                    "checkpoint-uncertain",
+                    {
+                        "checkpoint": cp,
+                        "sigma_m": round(sigma, 4),
+                        "tolerance_m": tolerance,
+                        "reason": f"checkpoint {cp} completed with a pose uncertainty of "
+                        f"{sigma * 100:.0f} cm > its tolerance {tolerance * 100:.0f} cm",
+                    },
+                )
+            )
 
     def _record_localisation(self, now: float, pose: PoseEstimate) -> None:
         """Events: what the pose in F is anchored to, and every global registration or

@@ -46,7 +46,10 @@ def _run(tmp_path, capsys, library: str, mission: str, faults: list[str]) -> tup
     captured = capsys.readouterr()
     assert "Traceback" not in captured.out + captured.err
     summary = captured.out.strip().splitlines()[-1]
-    return code, summary, json.loads((out / "metrics.json").read_text())
+    metrics = json.loads((out / "metrics.json").read_text())
+    metrics["stderr"] = captured.err
+    metrics["journal"] = [json.loads(line) for line in (out / "journal.jsonl").open()]
+    return code, summary, metrics
 
 
 CAMERAS = ("front-left", "front-right", "rear-left", "rear-right", "ptz")
@@ -84,6 +87,10 @@ def test_a_drifting_pose_without_gps_is_flagged_and_fails(tmp_path, capsys):
     cp = metrics["checkpoints"][0]
     assert cp["reached"] and cp["position_error"] > 0.15
     assert cp["uncertain"] and cp["pose_sigma"] > 0.15
+    # the executive itself knew, without ground truth: an event, a warning, the journal
+    assert "warning: checkpoint CP1 completed with a pose uncertainty of" in metrics["stderr"]
+    done = next(r for r in metrics["journal"] if r["event"] == "checkpoint-done")
+    assert done["sigma_f"] > 0.15
     assert re.search(
         r"failed: checkpoint CP1 reached \d+ cm from its pose \(tolerance 15 cm\)"
         r", with a pose uncertainty of \d+ cm",
