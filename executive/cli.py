@@ -37,11 +37,6 @@ EXIT_FAILED = 1
 EXIT_BAD_INPUT = 2
 
 
-def _source_line(problem: Problem) -> str | None:
-    """The offending line with a caret under the column (bounded read; see source_line)."""
-    return source_line(problem)
-
-
 def check_any(path: Path, library: Path | None = None) -> list[Problem]:
     """Every problem of an aircraft, mission or scenario file; never raises.
 
@@ -125,7 +120,7 @@ def cmd_validate(args: argparse.Namespace) -> int:
             for problem in problems:
                 total += 1
                 print(f"  {problem.where}: error: {problem.message} [{problem.code}]")
-                snippet = _source_line(problem)
+                snippet = source_line(problem)
                 if snippet:
                     print(snippet)
         n_bad = sum(1 for _, p, _ in results if p)

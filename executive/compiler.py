@@ -533,11 +533,7 @@ class _Builder:
                     )
                 )
             else:
-                ids = (
-                    (f"{unit.id}-left", f"{unit.id}-right")
-                    if unit.kind is CameraKind.STEREO
-                    else (unit.id,)
-                )
+                ids = camera_ids(m.platform, unit.id)
                 children.append(
                     InspectItems(cp.id, cp.items, m.aircraft, unit, ids, name=f"inspect {cp.id}")
                 )

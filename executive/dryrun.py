@@ -451,8 +451,7 @@ class _Watcher:
         if placement is not None:
             p_err = math.hypot(placement.x - self.true.x, placement.y - self.true.y)
             p_head = math.degrees(abs(wrap_angle(placement.heading - self.true.heading)))
-        cov = pose.covariance_f
-        sigma = math.sqrt(max(float(cov[0, 0] + cov[1, 1]), 0.0)) if cov is not None else math.nan
+        sigma = pose.sigma_f if pose.sigma_f is not None else math.nan
         self.localisation.append(
             LocalisationSample(
                 round(t, 3),
@@ -532,11 +531,8 @@ class _Watcher:
         goal = self.true.pose_to_airport(cp.pose)
         true = self.robot.world.robot_pose
         results = [r for r in progress.results if r.checkpoint == cp_id]
-        sigma = None
-        pose = self._last_pose
-        if pose is not None and pose.covariance_f is not None:
-            cov = pose.covariance_f
-            sigma = round(math.sqrt(max(float(cov[0, 0] + cov[1, 1]), 0.0)), 4)
+        sigma = self._last_pose.sigma_f if self._last_pose is not None else None
+        sigma = round(sigma, 4) if sigma is not None else None
         outcome = CheckpointOutcome(
             id=cp_id,
             reached=True,

@@ -163,15 +163,6 @@ def _freeze_long_lived() -> None:
     gc.freeze()
 
 
-def _position_sigma(pose: object) -> float | None:
-    """The estimate's own position uncertainty in F (m, sqrt of the covariance's trace)."""
-    cov = getattr(pose, "covariance_f", None)
-    if cov is None:
-        return None
-    value = float(cov[0, 0] + cov[1, 1])
-    return math.sqrt(value) if math.isfinite(value) and value >= 0.0 else None
-
-
 class Runtime:
     """Runs a compiled mission on a robot at a fixed rate."""
 
@@ -313,7 +304,7 @@ class Runtime:
         progress = self._get(PROGRESS.name)
         if not isinstance(progress, MissionProgress):
             return
-        sigma = _position_sigma(pose)
+        sigma = pose.sigma_f if isinstance(pose, PoseEstimate) else None
         if progress.completed != self._completed:
             self._flag_uncertain(now, progress.completed[len(self._completed) :], sigma)
             self._completed = progress.completed

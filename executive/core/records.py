@@ -259,6 +259,16 @@ class PoseEstimate:
     anchor: str = ""
     registration: RegistrationRecord | None = None
 
+    @property
+    def sigma_f(self) -> float | None:
+        """The estimate's own position uncertainty in F (m): the square root of the trace
+        of the position block of ``covariance_f``; None when it has none."""
+        cov = self.covariance_f
+        if cov is None:
+            return None
+        value = float(cov[0, 0] + cov[1, 1])
+        return math.sqrt(value) if math.isfinite(value) and value >= 0.0 else None
+
 
 class Danger(IntEnum):
     """How much a tracked obstacle matters to the robot (ordered: higher is worse).
