@@ -2,6 +2,7 @@
 
 from pathlib import Path
 
+import py_trees
 import pytest
 
 REPO = Path(__file__).resolve().parent.parent
@@ -18,3 +19,19 @@ SHIPPED_MISSIONS = {
 @pytest.fixture(scope="session")
 def a320_path() -> Path:
     return SHIPPED_MISSIONS["a320"]
+
+
+@pytest.fixture
+def fresh_blackboard():
+    """An empty py_trees blackboard for the test, and none left behind."""
+    py_trees.blackboard.Blackboard.clear()
+    yield
+    py_trees.blackboard.Blackboard.clear()
+
+
+def blackboard_writer(*keys):
+    """A blackboard client that may write ``keys`` (behaviours.keys.Key)."""
+    client = py_trees.blackboard.Client(name="test")
+    for key in keys:
+        client.register_key(key=key.name, access=py_trees.common.Access.WRITE)
+    return client

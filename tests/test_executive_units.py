@@ -33,24 +33,13 @@ from executive.dryrun import SimClock, dry_run
 from executive.journal import Journal, MissionBinding, read_journal
 from executive.runtime import Runtime
 from sim2d.robot import SimRobot
-from tests.conftest import MISSIONS
+from tests.conftest import MISSIONS, blackboard_writer
 from tests.sim2d_helpers import make_scenario, scenario_file
 
 S = py_trees.common.Status
 
 
-@pytest.fixture(autouse=True)
-def fresh_blackboard():
-    py_trees.blackboard.Blackboard.clear()
-    yield
-    py_trees.blackboard.Blackboard.clear()
-
-
-def _writer(*keys):
-    client = py_trees.blackboard.Client(name="test")
-    for key in keys:
-        client.register_key(key=key.name, access=py_trees.common.Access.WRITE)
-    return client
+pytestmark = pytest.mark.usefixtures("fresh_blackboard")
 
 
 def _pose(x, y, theta=0.0, t=0.0):
@@ -59,7 +48,7 @@ def _pose(x, y, theta=0.0, t=0.0):
 
 
 def test_obstacle_trigger_engages_below_r_oa_and_releases_with_hysteresis():
-    bb = _writer(OBSTACLES)
+    bb = blackboard_writer(OBSTACLES)
     guard = ObstacleTrigger(r_oa=2.5, release_margin=0.3)
     statuses = []
     for r_c in (3.0, 2.4, 2.6, 2.79, 2.81, 2.6):
@@ -70,7 +59,7 @@ def test_obstacle_trigger_engages_below_r_oa_and_releases_with_hysteresis():
 
 
 def test_not_trapped_fails_after_the_period_without_progress():
-    bb = _writer(POSE)
+    bb = blackboard_writer(POSE)
     guard = NotTrapped(Goal(Pose2(10.0, 0.0, 0.0)), period=5.0)
     for t in np.arange(0.0, 4.9, 0.1):  # progressing
         bb.set(POSE.name, _pose(t, 0.0, t=t), overwrite=True)
@@ -83,7 +72,7 @@ def test_not_trapped_fails_after_the_period_without_progress():
 
 
 def test_reached_needs_position_and_heading():
-    bb = _writer(POSE)
+    bb = blackboard_writer(POSE)
     guard = Reached(Goal(Pose2(1.0, 1.0, 0.5)), 0.05, math.radians(2))
     for pose, expected in (
         (_pose(1.0, 1.0, 0.5), S.SUCCESS),
@@ -119,7 +108,7 @@ def test_correct_camera_angle_turns_towards_the_target_then_succeeds():
         math.radians(0.25),
         max_omega=0.5,
     )
-    bb = _writer(SENSOR_FRAME, FEATURES)
+    bb = blackboard_writer(SENSOR_FRAME, FEATURES)
     reader = py_trees.blackboard.Client(name="reader")
     reader.register_key(key=COMMAND.name, access=py_trees.common.Access.READ)
     centre = camera.image_width_px / 2

@@ -34,7 +34,7 @@ from executive.dryrun import DryRun, dry_run
 from executive.report import write_report
 from sim2d.robot import SimRobot
 from sim2d.scenario import Scenario, load_scenario
-from tests.conftest import MISSIONS
+from tests.conftest import MISSIONS, blackboard_writer
 
 Status = py_trees.common.Status
 
@@ -48,18 +48,7 @@ ITEMS = {
 }
 
 
-@pytest.fixture(autouse=True)
-def fresh_blackboard():
-    py_trees.blackboard.Blackboard.clear()
-    yield
-    py_trees.blackboard.Blackboard.clear()
-
-
-def _writer(*keys):
-    client = py_trees.blackboard.Client(name="test")
-    for key in keys:
-        client.register_key(key=key.name, access=py_trees.common.Access.WRITE)
-    return client
+pytestmark = pytest.mark.usefixtures("fresh_blackboard")
 
 
 # -- the composite ------------------------------------------------------------------------------
@@ -263,7 +252,7 @@ def test_the_mode_selector_keeps_the_architecture_shape(lab_tree):
 
 
 def _operator_guard(requests: OperatorRequests, guard: OperatorTakeOver) -> Status:
-    _writer(OPERATOR).set(OPERATOR.name, requests, overwrite=True)
+    blackboard_writer(OPERATOR).set(OPERATOR.name, requests, overwrite=True)
     guard.tick_once()
     return guard.status
 
@@ -287,7 +276,7 @@ def test_inspection_re_entered_skips_the_items_already_recorded():
     node.setup()
     first = ItemResult("CP2", ITEMS["CP2"][0], 1.0, True, "ptz", 0.0, 0.0, (0.0, 0.0, 0.0))
     other = dataclasses.replace(first, checkpoint="CP3", item=ITEMS["CP2"][1])
-    bb = _writer(PROGRESS, SENSOR_FRAME, COMMAND)
+    bb = blackboard_writer(PROGRESS, SENSOR_FRAME, COMMAND)
     bb.set(PROGRESS.name, MissionProgress(results=(first, other)), overwrite=True)
     bb.set(SENSOR_FRAME.name, SensorFrame(2.0), overwrite=True)
     node.tick_once()

@@ -36,28 +36,17 @@ from executive.core.records import (
     PoseEstimate,
     SensorFrame,
 )
-from tests.conftest import MISSIONS
+from tests.conftest import MISSIONS, blackboard_writer
 
 S = py_trees.common.Status
 
 
-@pytest.fixture(autouse=True)
-def fresh_blackboard():
-    py_trees.blackboard.Blackboard.clear()
-    yield
-    py_trees.blackboard.Blackboard.clear()
+pytestmark = pytest.mark.usefixtures("fresh_blackboard")
 
 
 @pytest.fixture(scope="module")
 def lab():
     return load_mission(MISSIONS / "lab" / "visual-servoing.xml")
-
-
-def _writer(*keys):
-    client = py_trees.blackboard.Client(name="test")
-    for key in keys:
-        client.register_key(key=key.name, access=py_trees.common.Access.WRITE)
-    return client
 
 
 def _reader(*keys):
@@ -200,7 +189,7 @@ def test_at_the_goal_the_command_vanishes_and_algorithm_3_1_stops(lab):
 def test_guard_and_controller_on_the_blackboard(lab):
     session = _session(lab)
     world = _World(session, next(c for c in lab.checkpoints if c.id == "CP1").pose)
-    bb = _writer(SENSOR_FRAME, FEATURES, POSE)
+    bb = blackboard_writer(SENSOR_FRAME, FEATURES, POSE)
     reader = _reader(SERVO, COMMAND)
     guards = {m: FeaturesVisible(session, m) for m in (IBVS, PBVS)}
     controller = VisualServoing(session, PBVS)
@@ -246,7 +235,7 @@ def _cca_inputs(pan: float, u: float = 400.0) -> tuple[SensorFrame, FeatureObser
 
 def test_correct_camera_angle_acts_on_the_measured_pan_and_keeps_the_target(lab):
     node, _ = _cca(lab)
-    bb = _writer(SENSOR_FRAME, FEATURES)
+    bb = blackboard_writer(SENSOR_FRAME, FEATURES)
     reader = _reader(COMMAND)
     pan_star = node.desired_pan
     for pan, expect in (
@@ -273,7 +262,7 @@ def test_correct_camera_angle_acts_on_the_measured_pan_and_keeps_the_target(lab)
 
 def test_correct_camera_angle_leaves_a_metric_checkpoint_alone(lab):
     node, _ = _cca(lab, servoed=False)
-    bb = _writer(SENSOR_FRAME, FEATURES)
+    bb = blackboard_writer(SENSOR_FRAME, FEATURES)
     frame, features = _cca_inputs(node.desired_pan + math.radians(10.0))
     bb.set(SENSOR_FRAME.name, frame, overwrite=True)
     bb.set(FEATURES.name, features, overwrite=True)
