@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -212,8 +213,7 @@ class _CommandLog:
 
     def __init__(self, robot: SimRobot, keep: int = 5) -> None:
         self.robot = robot
-        self.keep = keep
-        self.sent: list[tuple[float, VelocityCommand]] = []
+        self.sent: deque[tuple[float, VelocityCommand]] = deque(maxlen=keep)
 
     def read(self) -> SensorFrame:
         return self.robot.read()
@@ -221,11 +221,9 @@ class _CommandLog:
     def send(self, command: VelocityCommand) -> None:
         self.robot.send(command)
         self.sent.append((self.robot.time, command))
-        if len(self.sent) > 4 * self.keep:
-            del self.sent[: -self.keep]
 
     def last(self) -> list[tuple[float, VelocityCommand]]:
-        return self.sent[-self.keep :]
+        return list(self.sent)
 
 
 @dataclass
