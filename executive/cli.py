@@ -24,6 +24,8 @@ from executive.core.problems import (
     source_line,
 )
 from executive.core.resources import missions_dir, shipped_mission_files
+from executive.robotlink.config import check_robot, load_robot
+from executive.robotlink.config import describe as describe_robot
 from sim2d.scenario import check_scenario, load_scenario
 
 if TYPE_CHECKING:
@@ -38,14 +40,17 @@ EXIT_BAD_INPUT = 2
 
 
 def check_any(path: Path, library: Path | None = None) -> list[Problem]:
-    """Every problem of an aircraft, mission or scenario file; never raises.
+    """Every problem of an aircraft, mission, scenario or robot file; never raises.
 
     An unexpected exception of a checker becomes an ``internal-error`` problem of this
     file, so a batch goes on with the next file.
     """
     try:
-        if root_name(path) == "scenario":
+        kind = root_name(path)
+        if kind == "scenario":
             return check_scenario(path, library)
+        if kind == "robot":
+            return check_robot(path)
         return check_file(path, library)
     except Exception as exc:  # reported as a problem of this file
         return [internal_error(path, exc)]
@@ -53,6 +58,8 @@ def check_any(path: Path, library: Path | None = None) -> list[Problem]:
 
 def _describe(path: Path) -> str:
     kind = root_name(path)
+    if kind == "robot":
+        return describe_robot(load_robot(path))
     if kind == "scenario":
         scenario = load_scenario(path)
         return (
@@ -588,6 +595,10 @@ def build_parser() -> argparse.ArgumentParser:
         "KeepRunningUntilFailure node per non-selected child)",
     )
     show.set_defaults(handler=cmd_show)
+
+    from executive.cli_robot import add_robot_commands
+
+    add_robot_commands(sub)
     return parser
 
 

@@ -44,7 +44,7 @@ from executive.core.records import (
     SensorFrame,
     VelocityCommand,
 )
-from executive.core.robot import RobotInterface
+from executive.core.robot import LinkHealth, RobotInterface
 from executive.journal import Journal, JournalWriteError
 from executive.safety import SafetyLayer
 
@@ -209,6 +209,7 @@ class Runtime:
         self._registration: RegistrationRecord | None = None
         self.aborted_at: float | None = None
         """When the operator asked to abort (the tree then holds the robot still)."""
+        self._link = robot if isinstance(robot, LinkHealth) else None
 
     def _get(self, key: str) -> object:
         try:
@@ -421,6 +422,11 @@ class Runtime:
             if self.stop:
                 outcome, reason = "interrupted", f"{self.stop.reason} at {now:.1f} s"
                 self._stop_safely(now, "interrupted", reason)
+                break
+            faults = self._link.link_faults() if self._link is not None else ()
+            if faults:
+                outcome, reason = "failed", f"robot link lost at {now:.1f} s: {'; '.join(faults)}"
+                self._stop_safely(now, "link-lost", reason)
                 break
             try:
                 status = self.step()

@@ -962,6 +962,12 @@ class SimulatedBaseFirmware:
             return self._state.watchdog_fired_at
 
     @property
+    def heartbeat_at(self) -> float | None:
+        """When (base clock) the last valid EXEC_HEARTBEAT arrived; None before any."""
+        with self._lock:
+            return self._state.heartbeat_at
+
+    @property
     def latched(self) -> bool:
         with self._lock:
             return self._state.latched

@@ -1,0 +1,246 @@
+"""RobotLink: the robot as the runtime sees it, composed from one client per wire.
+
+Like python-can's ``BusABC`` and its backends, each wire is a small client with the same
+shape (a background thread, ``latest()`` that never blocks, its own health and
+statistics); :class:`RobotLink` composes them from a robot file into the one seam the
+runtime knows (:class:`~executive.core.robot.RobotInterface`):
+
+* the drive base, IMU, pan-tilt units and bumpers: :class:`~.canbase.CanBaseLink` on a
+  python-can bus, with the DBC shipped with walkaround;
+* the lasers: one :class:`~.scip.ScipClient` per scanner (SCIP 2.0 over TCP);
+* the GPS: :class:`~.nmea.NmeaClient` (NMEA 0183 over TCP or a serial port);
+* the cameras' feature detections: :class:`~.detections.DetectionSubscriber` (ZeroMQ).
+
+Every reading is stamped on arrival with the run's clock. :meth:`RobotLink.read` puts
+the latest of each in a :class:`SensorFrame`; the safety layer judges freshness, so a
+laser whose connection dropped simply goes stale (the robot is held) and comes back by
+itself. :meth:`RobotLink.link_faults` names what makes the base itself untrustworthy
+(its heartbeat lost, bus-off, error frames, failed sends, a replayed counter): the
+runtime then stops the run. Closing the link stops our heartbeat, so the base's watchdog
+brakes even if the last stop frame were lost.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import time
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from types import MappingProxyType
+
+import can
+
+from executive.core.model import Platform
+from executive.core.records import CameraFrame, SensorFrame, VelocityCommand, camera_ids
+from executive.robotlink.canbase import BaseLinkConfig, CanBaseLink, ExecState
+from executive.robotlink.config import RobotConfig
+from executive.robotlink.detections import DetectionSubscriber
+from executive.robotlink.nmea import GeoReference, NmeaClient
+from executive.robotlink.scip import ScipClient
+
+Clock = Callable[[], float]
+
+
+class LinkError(Exception):
+    """The robot's wires could not be opened; the message says which and why."""
+
+
+class RobotLink:
+    """The robot's wires composed into a :class:`RobotInterface` with link health."""
+
+    def __init__(
+        self,
+        bus: can.BusABC,
+        base: CanBaseLink,
+        lasers: dict[str, ScipClient],
+        gps: NmeaClient | None,
+        detections: DetectionSubscriber | None,
+        clock: Clock,
+        recorder: _CanRecorder | None = None,
+    ) -> None:
+        self.bus = bus
+        self.base = base
+        self.lasers = lasers
+        self.gps = gps
+        self.detections = detections
+        self.clock = clock
+        self._recorder = recorder
+        self._reset_requested = False
+        self._closed = False
+
+    @classmethod
+    def open(
+        cls,
+        config: RobotConfig,
+        platform: Platform,
+        *,
+        clock: Clock | None = None,
+        can_log: Path | None = None,
+    ) -> RobotLink:
+        """Open every wire of ``config`` for a robot with ``platform``'s sensors."""
+        t0 = time.monotonic()
+        clock = clock or (lambda: time.monotonic() - t0)
+        try:
+            bus = can.Bus(**config.can.bus_kwargs())
+        except (can.CanError, OSError, ValueError, ImportError) as exc:
+            raise LinkError(f"CAN {config.can.interface}:{config.can.channel}: {exc}") from exc
+        base = CanBaseLink(
+            bus,
+            BaseLinkConfig.from_indices(
+                config.ptus, watchdog=config.can.watchdog, base_timeout=config.can.base_timeout
+            ),
+            clock=clock,
+        )
+        recorder = None
+        if can_log is not None:
+            recorder = _CanRecorder(config.can.bus_kwargs(), can_log)
+        lasers = {
+            laser.id: ScipClient(laser.host, laser.port, clock=clock, name=laser.id)
+            for laser in config.lasers
+        }
+        gps = None
+        if config.gps is not None:
+            geo = GeoReference(
+                config.gps.latitude_deg, config.gps.longitude_deg, config.gps.x_axis_bearing_deg
+            )
+            gps = NmeaClient(config.gps.url, geo, clock, baudrate=config.gps.baud)
+        detections = None
+        if config.detections is not None:
+            cameras = [cam for unit in platform.cameras for cam in camera_ids(platform, unit)]
+            detections = DetectionSubscriber(config.detections, cameras, clock)
+        return cls(bus, base, lasers, gps, detections, clock, recorder)
+
+    def wait_ready(self, timeout: float = 10.0, period: float = 0.02) -> None:
+        """Bring the base up: send stop commands with our heartbeat (state IDLE) until the
+        base answers with its own heartbeat and no reason to distrust the link remains
+        (a base braking on its watchdog releases once it sees our heartbeat). Raises
+        :class:`LinkError` naming what is still wrong after ``timeout`` seconds."""
+        deadline = time.monotonic() + timeout
+        while True:
+            self.base.send(VelocityCommand.stop(), ExecState.IDLE)
+            faults = self.link_faults()
+            if not faults and self.base.snapshot().heartbeat_at is not None:
+                return
+            if time.monotonic() >= deadline:
+                raise LinkError(
+                    f"the base is not ready after {timeout:g} s: "
+                    + ("; ".join(faults) or "no base heartbeat")
+                )
+            time.sleep(period)
+
+    # -- RobotInterface ---------------------------------------------------------------------------
+    def read(self) -> SensorFrame:
+        now = self.clock()
+        snapshot = self.base.snapshot()
+        scans = {lid: scan for lid, client in self.lasers.items() if (scan := client.latest())}
+        cameras: dict[str, CameraFrame] = (
+            self.detections.latest() if self.detections is not None else {}
+        )
+        frame = SensorFrame(
+            stamp=now,
+            scans=MappingProxyType(scans),
+            cameras=MappingProxyType(cameras),
+            gps=self.gps.latest() if self.gps is not None else None,
+        )
+        return snapshot.fill(frame)
+
+    def send(self, command: VelocityCommand) -> None:
+        if self._reset_requested:
+            self._reset_requested = False
+            self.base.send_reset()
+        self.base.send(command, ExecState.RUNNING)
+
+    # -- health -----------------------------------------------------------------------------------
+    def link_faults(self) -> tuple[str, ...]:
+        return tuple(self.base.health())
+
+    def request_reset(self) -> None:
+        """Send the base a BASE_RESET with the next command (the operator's reset of a
+        latched bumper; the base refuses it while a bumper is still pressed)."""
+        self._reset_requested = True
+
+    def status(self) -> dict[str, object]:
+        """What the operator's status request shows about the wires."""
+        snapshot = self.base.snapshot()
+        return {
+            "base_state": snapshot.base_state.name.lower() if snapshot.base_state else None,
+            "battery_percent": snapshot.battery_percent,
+            "link_faults": list(self.link_faults()),
+            "lasers": {lid: client.health() for lid, client in self.lasers.items()},
+            "gps": self.gps.status() if self.gps is not None else [],
+        }
+
+    def statistics(self) -> dict[str, object]:
+        """Counters and latencies of every wire, for the run's metrics.json."""
+        stats = self.base.stats()
+        latency = stats.latency
+
+        def ms(x: float) -> float | None:
+            return round(x * 1e3, 3) if math.isfinite(x) else None
+
+        out: dict[str, object] = {
+            "can": {
+                "frames": _plain(stats.frames),
+                "error_frames": stats.error_frames,
+                "send_errors": stats.send_errors,
+                "refused_commands": stats.refused_commands,
+                "receive_latency_ms": {
+                    "count": latency.count,
+                    "p50": ms(latency.p50),
+                    "p99": ms(latency.p99),
+                    "max": ms(latency.max),
+                },
+            },
+            "lasers": {lid: _plain(client.stats()) for lid, client in self.lasers.items()},
+        }
+        if self.gps is not None:
+            out["gps"] = _plain(self.gps.counts())
+        if self.detections is not None:
+            out["detections"] = _plain(self.detections.counts())
+        return out
+
+    def close(self) -> None:
+        """Close every wire (idempotent). Our heartbeat stops: the base's watchdog brakes."""
+        if self._closed:
+            return
+        self._closed = True
+        with contextlib.suppress(Exception):  # the link may be what failed: the watchdog brakes
+            self.base.send(VelocityCommand.stop(), ExecState.STOPPING)
+        for client in (*self.lasers.values(), self.gps, self.detections):
+            if client is not None:
+                client.close()
+        self.base.close()
+        if self._recorder is not None:
+            self._recorder.close()
+        self.bus.shutdown()
+
+
+class _CanRecorder:
+    """The run's CAN log: a second bus on the same channel sees the frames of both ends
+    (the link's own bus belongs to its receive thread), written by python-can's Logger
+    (.blf, .asc, ... by the file's suffix) for cantools and the python-can tools."""
+
+    def __init__(self, bus_kwargs: dict[str, object], path: Path) -> None:
+        self.bus = can.Bus(**bus_kwargs)
+        self.logger = can.Logger(str(path))
+        self.notifier = can.Notifier(self.bus, [self.logger], timeout=0.05)
+
+    def close(self) -> None:
+        self.notifier.stop(timeout=1.0)  # stops (and closes) the logger too
+        self.bus.shutdown()
+
+
+def _plain(value: object) -> object:
+    """A statistics record as JSON-able data."""
+    import dataclasses
+
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return {f.name: _plain(getattr(value, f.name)) for f in dataclasses.fields(value)}
+    if isinstance(value, Mapping):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, tuple | list):
+        return [_plain(v) for v in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value

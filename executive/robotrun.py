@@ -1,0 +1,219 @@
+"""``walkaround run``: the executive on the robot (issue 14).
+
+The same compiled tree, safety layer, journal and runtime as a dry-run, on the wall
+clock, against a :class:`~executive.robotlink.link.RobotLink` instead of sim2d. What a
+dry-run's judge measures on ground truth is not known here: the report says what the
+executive knows (outcome and reason, checkpoints completed and when, the estimate's own
+uncertainty, safety stops, tick deadlines, link statistics), and the CAN traffic of the
+run is logged (``can.blf``) so that cantools or any python-can tool can replay it.
+Checkpoint completions carry the wall-clock time (``unix``) so that a hardware-in-the-
+loop simulator's ground truth can judge the run afterwards (:mod:`executive.hil`).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TextIO
+
+from behaviours.keys import POSE, PROGRESS, MissionProgress
+from executive.compiler import CompileOptions, compile_mission
+from executive.core.files import write_atomic
+from executive.core.frames import Pose2
+from executive.core.model import Mission
+from executive.core.records import PoseEstimate, SensorFrame, VelocityCommand
+from executive.journal import Journal, JournalState, MissionBinding
+from executive.operator import OperatorState
+from executive.runtime import (
+    DEFAULT_MAX_MISSED_DEADLINES,
+    RunResult,
+    Runtime,
+    StopRequest,
+    WallClock,
+)
+from executive.safety import SafetyLayer
+
+REPORT_FILES = ("metrics.json", "events.jsonl")
+
+
+@dataclass
+class CheckpointDone:
+    """A checkpoint the executive completed: when (run clock and Unix time) and where it
+    believed the robot was in F, with its own position uncertainty."""
+
+    id: str
+    t: float
+    unix: float
+    pose_f: tuple[float, float, float] | None
+    sigma_f: float | None
+
+
+@dataclass
+class RobotRun:
+    mission: Mission
+    result: RunResult
+    checkpoints: list[CheckpointDone]
+    link: dict[str, object]
+    resumed_from: tuple[str, ...] = ()
+    wall_start: float = 0.0
+
+    @property
+    def succeeded(self) -> bool:
+        return self.result.outcome == "completed"
+
+
+class _Watcher:
+    """Per tick: checkpoint completions with their time, and the progress line."""
+
+    def __init__(self, mission: Mission, out: TextIO | None, done: tuple[str, ...]) -> None:
+        self.n = len(mission.checkpoints)
+        self.seen = set(done)
+        self.checkpoints: list[CheckpointDone] = []
+        self.out = out
+        self._next_print = 0.0
+
+    def __call__(self, t: float, frame: SensorFrame, sent: VelocityCommand, rt: Runtime) -> None:
+        progress = rt._get(PROGRESS.name)
+        if isinstance(progress, MissionProgress):
+            pose = rt._get(POSE.name)
+            for cp in progress.completed:
+                if cp in self.seen:
+                    continue
+                self.seen.add(cp)
+                pf = pose.pose_f if isinstance(pose, PoseEstimate) else None
+                self.checkpoints.append(
+                    CheckpointDone(
+                        cp,
+                        round(t, 3),
+                        time.time(),
+                        (round(pf.x, 4), round(pf.y, 4), round(pf.theta, 5)) if pf else None,
+                        pose.sigma_f if isinstance(pose, PoseEstimate) else None,
+                    )
+                )
+        if self.out is not None and t >= self._next_print:
+            self._next_print = t + 1.0
+            self.out.write(
+                f"\r{t:6.1f} s  {len(self.seen)}/{self.n} checkpoints  "
+                f"{rt.controller[:40]:<40}  v {sent.v:+.2f} m/s"
+            )
+            self.out.flush()
+
+
+def robot_run(
+    mission: Mission,
+    link: object,
+    *,
+    rate_hz: float = 50.0,
+    journal_path: Path | None = None,
+    resume: JournalState | None = None,
+    operator: OperatorState | None = None,
+    stop: StopRequest | None = None,
+    max_missed_deadlines: int | None = DEFAULT_MAX_MISSED_DEADLINES,
+    max_time: float | None = None,
+    progress_out: TextIO | None = None,
+    servo: bool | None = None,
+) -> RobotRun:
+    """Run ``mission`` on the robot behind ``link`` (a RobotInterface) on the wall clock.
+
+    Everything slow (compiling the tree, opening the journal) happens before the link is
+    brought up (its ``wait_ready``, if it has one): from then on a tick feeds the base's
+    watchdog every period. Raises what ``wait_ready`` raises when the base is not ready.
+    """
+    progress = resume.progress if resume is not None else None
+    start = Pose2(*resume.pose_a) if resume is not None and resume.pose_a else None
+    compiled = compile_mission(
+        mission,
+        CompileOptions(rate_hz=rate_hz, start=start, resume=progress, servo=servo),
+    )
+    safety = SafetyLayer(
+        mission, compiled.placement, 1.0 / rate_hz, geofence_margin=mission.safety.geofence_margin
+    )
+    journal = None
+    if journal_path is not None:
+        journal = Journal(
+            journal_path,
+            MissionBinding.of(mission),
+            append=resume is not None,
+            keep_bytes=resume.keep_bytes if resume is not None else None,
+        )
+        if progress is not None:
+            journal.resume_from(progress)
+            journal.write({"event": "resume", "t": 0.0})
+    done = progress.completed if progress is not None else ()
+    watcher = _Watcher(mission, progress_out, done)
+    ready = getattr(link, "wait_ready", None)
+    if callable(ready):  # last, so that the base's watchdog is fed from here on
+        ready()
+    runtime = Runtime(
+        compiled,
+        link,  # type: ignore[arg-type]
+        WallClock(),
+        safety,
+        rate_hz=rate_hz,
+        journal=journal,
+        operator=operator,
+        on_tick=watcher,
+        stop=stop,
+        max_missed_deadlines=max_missed_deadlines,
+    )
+    wall_start = time.time()
+    try:
+        result = runtime.run(max_time if max_time is not None else float("inf"))
+    finally:
+        if progress_out is not None:
+            progress_out.write("\n")
+    if journal is not None:
+        end: dict[str, object] = (
+            {"t": round(result.duration, 3), "event": "interrupted", "reason": result.reason}
+            if result.outcome == "interrupted"
+            else {"t": round(result.duration, 3), "event": "mission-end", "outcome": result.outcome}
+        )
+        try:
+            journal.write(end)
+        finally:
+            journal.close()
+    stats = getattr(link, "statistics", None)
+    return RobotRun(
+        mission=mission,
+        result=result,
+        checkpoints=watcher.checkpoints,
+        link=stats() if callable(stats) else {},
+        resumed_from=tuple(done),
+        wall_start=wall_start,
+    )
+
+
+def robot_metrics(run: RobotRun) -> dict[str, object]:
+    """metrics.json of a robot run: what the executive knows, without ground truth."""
+    result = run.result
+    return {
+        "mission": run.mission.id,
+        "outcome": result.outcome,
+        "succeeded": run.succeeded,
+        "reason": result.reason,
+        "traceback": result.traceback,
+        "stop_sent": result.stop_sent,
+        "wall_start_unix": run.wall_start,
+        "duration_s": round(result.duration, 3),
+        "checkpoints_total": len(run.mission.checkpoints),
+        "checkpoints_completed": len(result.progress.completed),
+        "resumed_after": list(run.resumed_from),
+        "checkpoints": [cp.__dict__ for cp in run.checkpoints],
+        "tick_timing": result.stats.summary(),
+        "link": run.link,
+        "safety_stops": [
+            e.as_dict() for e in result.events if e.kind in ("safety", "link-lost", "fault")
+        ],
+    }
+
+
+def write_robot_report(run: RobotRun, out: Path) -> None:
+    """metrics.json and events.jsonl, each written whole (temporary file + rename)."""
+    out.mkdir(parents=True, exist_ok=True)
+    write_atomic(out / "metrics.json", (json.dumps(robot_metrics(run), indent=2) + "\n").encode())
+    events = "".join(
+        json.dumps(e.as_dict(), separators=(",", ":")) + "\n" for e in run.result.events
+    )
+    write_atomic(out / "events.jsonl", events.encode())

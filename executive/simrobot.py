@@ -1,0 +1,235 @@
+"""``walkaround sim-robot``: sim2d in real time, serving exactly the robot's wires.
+
+Hardware in the loop without the hardware (ARCHITECTURE §8): the scenario runs on the
+wall clock in its own process and speaks what the robot speaks, on the addresses of a
+robot file:
+
+* CAN frames per the shipped DBC on the configured python-can interface, through
+  :class:`~executive.robotlink.canbase.SimulatedBaseFirmware` — the base's own rules:
+  the watchdog brakes when the executive's heartbeat stops, a bumper contact latches
+  until a BASE_RESET, repeated or corrupt frames feed nothing;
+* one SCIP 2.0 server per laser (a UTM-30LX-EW as the executive's client sees it);
+* an NMEA 0183 stream (GGA + GST) of the simulated GPS, no fix under the wings;
+* the camera detections on ZeroMQ, as the on-board vision process publishes them.
+
+The motors get only what the firmware lets through. The ground truth is written to
+``truth.jsonl`` with the Unix time of each sample (and collisions and watchdog braking as
+events) so that :mod:`executive.hil` can judge the run of ``walkaround run``, which never
+sees it.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+import math
+import time
+from collections.abc import Callable
+from pathlib import Path
+from types import MappingProxyType
+
+import can
+import numpy as np
+
+from executive.core.records import PanTiltRate, SensorFrame, VelocityCommand
+from executive.hil import TRUTH_FILE
+from executive.robotlink.canbase import SimulatedBaseFirmware
+from executive.robotlink.config import RobotConfig
+from executive.robotlink.detections import DetectionPublisher
+from executive.robotlink.nmea import GeoReference, NmeaServer
+from executive.robotlink.scip import ScipServer
+from sim2d.robot import SimRobot
+from sim2d.scenario import FaultKind, Scenario
+
+STEP = 0.01
+"""Seconds of the serving loop: the physics rate of sim2d (100 Hz)."""
+BASE_RATE_HZ = 50.0
+"""The base's status frames (wheels, IMU, pan-tilt, bumpers, heartbeat)."""
+TRUTH_RATE_HZ = 10.0
+
+
+def _port_of(url: str) -> int:
+    """The port of ``socket://host:port``."""
+    return int(url.rsplit(":", 1)[1])
+
+
+class _Wires:
+    """The servers of every wire, and what each last published."""
+
+    def __init__(self, config: RobotConfig, clock: Callable[[], float]) -> None:
+        self.bus = can.Bus(**config.can.bus_kwargs())
+        self.firmware = SimulatedBaseFirmware(
+            self.bus, clock=clock, watchdog=config.can.watchdog, ptu_units=_units(config)
+        )
+        self.lasers = {laser.id: ScipServer(port=laser.port) for laser in config.lasers}
+        self.gps = None
+        if config.gps is not None and config.gps.url.startswith("socket://"):
+            geo = GeoReference(
+                config.gps.latitude_deg, config.gps.longitude_deg, config.gps.x_axis_bearing_deg
+            )
+            self.gps = NmeaServer(geo, port=_port_of(config.gps.url))
+        self.detections = (
+            DetectionPublisher(config.detections) if config.detections is not None else None
+        )
+        self._sent: dict[str, float] = {}
+        self._dropped: set[str] = set()
+
+    def _new(self, key: str, stamp: float) -> bool:
+        if self._sent.get(key) == stamp:
+            return False
+        self._sent[key] = stamp
+        return True
+
+    def drop_lasers(self, scenario: Scenario, t: float) -> None:
+        """A scenario's ``laser-dropout`` is, on the wire, the scanner's TCP connection
+        dropped at the fault's start (sim2d produces no scan while it lasts, and the
+        client reconnects to a silent device until it ends)."""
+        for fault in scenario.faults:
+            key = f"drop:{fault.target}:{fault.at}"
+            if (
+                fault.kind is FaultKind.LASER_DROPOUT
+                and fault.active(t)
+                and key not in self._dropped
+            ):
+                self._dropped.add(key)
+                for lid, server in self.lasers.items():
+                    if fault.target in (None, lid):
+                        server.drop_connections()
+
+    def publish_sensors(self, frame: SensorFrame) -> None:
+        for lid, scan in frame.scans.items():
+            server = self.lasers.get(lid)
+            if server is not None and self._new(f"laser:{lid}", scan.stamp):
+                server.publish(np.asarray(scan.ranges), int(scan.stamp * 1000) % (1 << 24))
+        if self.detections is not None:
+            for cam, image in frame.cameras.items():
+                if self._new(f"camera:{cam}", image.stamp):
+                    self.detections.publish(cam, image)
+
+    def publish_gps(self, frame: SensorFrame, t: float, rate_hz: float) -> None:
+        if self.gps is None:
+            return
+        fix = frame.gps
+        if fix is not None and self._new("gps", fix.stamp):
+            self.gps.publish(fix, dt.datetime.now(dt.UTC))
+        elif fix is None and self._new("gps-none", math.floor(t * rate_hz)):
+            self.gps.publish(None, dt.datetime.now(dt.UTC))  # a GGA without a fix
+
+    def publish_base(self, frame: SensorFrame) -> None:
+        wheels = frame.wheels
+        left, right = (wheels.left, wheels.right) if wheels is not None else (0.0, 0.0)
+        self.firmware.publish(
+            wheels=(left, right, left, right),
+            yaw_rate=frame.imu.yaw_rate if frame.imu is not None else 0.0,
+            ptu={unit: (pt.pan, pt.tilt) for unit, pt in frame.pan_tilt.items()},
+            bumpers=(frame.bumpers.front, frame.bumpers.rear),
+        )
+
+    def close(self) -> None:
+        for server in self.lasers.values():
+            server.close()
+        if self.gps is not None:
+            self.gps.close()
+        if self.detections is not None:
+            self.detections.close()
+        self.bus.shutdown()
+
+
+def _units(config: RobotConfig) -> tuple[str, ...]:
+    units = [""] * (max(config.ptus.values(), default=-1) + 1)
+    for unit, index in config.ptus.items():
+        units[index] = unit
+    return tuple(units)
+
+
+def serve(
+    scenario: Scenario,
+    config: RobotConfig,
+    out: Path,
+    *,
+    should_stop: Callable[[], bool] = lambda: False,
+    max_time: float | None = None,
+) -> str:
+    """Run ``scenario`` in real time serving ``config``'s wires until ``should_stop`` or
+    ``max_time`` (s); returns a one-line summary. Writes ``out/truth.jsonl``."""
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.monotonic()
+
+    def clock() -> float:
+        return time.monotonic() - t0
+
+    sim = SimRobot(scenario)
+    wires = _Wires(config, clock)
+    end = min(max_time if max_time is not None else math.inf, scenario.duration)
+    next_base = next_truth = 0.0
+    braked_at: float | None = None
+    collisions = 0
+    gps_rate = scenario.gps.rate_hz
+    with (out / TRUTH_FILE).open("w", encoding="utf-8") as truth:
+        try:
+            while not should_stop() and sim.time < end:
+                wires.firmware.poll()
+                command = wires.firmware.command()
+                sim.send(
+                    VelocityCommand(
+                        command.v,
+                        command.omega,
+                        MappingProxyType(
+                            {u: PanTiltRate(p, t) for u, (p, t) in command.pan_tilt.items()}
+                        ),
+                    )
+                )
+                sim.advance(STEP)
+                frame = sim.read()
+                wires.drop_lasers(scenario, sim.time)
+                wires.publish_sensors(frame)
+                wires.publish_gps(frame, sim.time, gps_rate)
+                if sim.time >= next_base:
+                    next_base += 1.0 / BASE_RATE_HZ
+                    wires.publish_base(frame)
+                fired = wires.firmware.watchdog_fired_at
+                if fired is not None and fired != braked_at:
+                    braked_at = fired
+                    last = wires.firmware.heartbeat_at
+                    _event(
+                        truth,
+                        {
+                            "event": "watchdog",
+                            "unix": time.time(),
+                            "base_clock": fired,
+                            "last_heartbeat": last,
+                            "after_s": None if last is None else fired - last,
+                            "v": command.v,
+                        },
+                    )
+                    truth.flush()
+                world = sim.world
+                for c in world.collisions[collisions:]:
+                    _event(truth, {"event": "collision", "with": c.other, "t": c.time})
+                collisions = len(world.collisions)
+                if sim.time >= next_truth:
+                    next_truth += 1.0 / TRUTH_RATE_HZ
+                    pose = world.robot_pose
+                    _event(
+                        truth,
+                        {
+                            "t": round(sim.time, 3),
+                            "unix": time.time(),
+                            "robot": [pose.x, pose.y, pose.theta],
+                        },
+                    )
+                    truth.flush()
+                delay = sim.time - clock()
+                if delay > 0:
+                    time.sleep(delay)
+        finally:
+            wires.close()
+    lag = clock() - sim.time
+    return (
+        f"sim-robot: {sim.time:.1f} s served ({lag:+.2f} s behind real time), "
+        f"{collisions} collisions; truth in {out / TRUTH_FILE}"
+    )
+
+
+def _event(out: object, record: dict[str, object]) -> None:
+    out.write(json.dumps(record, separators=(",", ":")) + "\n")  # type: ignore[attr-defined]

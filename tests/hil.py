@@ -1,0 +1,127 @@
+"""Hardware in the loop for the tests: ``walkaround sim-robot`` and ``walkaround run`` as
+real processes on this machine's loopback (TCP) and a private UDP multicast port (CAN)."""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from executive.hil import TRUTH_FILE, TruthLog, judge_hil
+from sim2d.scenario import load_scenario
+from tests.conftest import MISSIONS
+
+LAB_MISSION = MISSIONS / "lab" / "visual-servoing.xml"
+LAB_CLEAR = MISSIONS / "lab" / "scenarios" / "clear-apron.xml"
+REPO = Path(__file__).resolve().parent.parent
+
+
+def free_port(kind: int = socket.SOCK_STREAM) -> int:
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def robot_file(folder: Path) -> Path:
+    """A robot file like missions/robots/hil-localhost.xml on ports nobody else uses."""
+    path = folder / "robot.xml"
+    path.write_text(
+        f"""<?xml version="1.0" encoding="UTF-8"?>
+<robot xmlns="urn:walkaround:robot:1" id="hil-test">
+  <can interface="udp_multicast" channel="239.74.163.2" port="{free_port(socket.SOCK_DGRAM)}"
+       watchdog-ms="100" base-timeout-ms="100"/>
+  <ptu unit="front" index="0"/>
+  <ptu unit="rear" index="1"/>
+  <ptu unit="ptz" index="2"/>
+  <laser id="front" host="127.0.0.1" port="{free_port()}"/>
+  <laser id="rear" host="127.0.0.1" port="{free_port()}"/>
+  <gps url="socket://127.0.0.1:{free_port()}" latitude-deg="43.6293" longitude-deg="1.3638"/>
+  <detections endpoint="tcp://127.0.0.1:{free_port()}"/>
+</robot>
+"""
+    )
+    return path
+
+
+def walkaround(*args: object, **kwargs: object) -> subprocess.Popen:
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    return subprocess.Popen(
+        [sys.executable, "-m", "executive.cli", *map(str, args)],
+        cwd=REPO,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        **kwargs,  # type: ignore[arg-type]
+    )
+
+
+class Hil:
+    """One simulator and the runs against it, in ``folder``."""
+
+    def __init__(self, folder: Path, scenario: Path = LAB_CLEAR, max_time: float = 400) -> None:
+        self.folder = folder
+        self.scenario = scenario
+        self.robot = robot_file(folder)
+        self.sim_out = folder / "sim"
+        self.sim = walkaround(
+            "sim-robot", scenario, "--robot", self.robot, "--out", self.sim_out,
+            "--max-time", max_time,
+        )  # fmt: skip
+        self.run_out = folder / "run"
+
+    def start_run(self, mission: Path = LAB_MISSION, *extra: object) -> subprocess.Popen:
+        return walkaround(
+            "run", mission, "--robot", self.robot, "--out", self.run_out, "--quiet", *extra
+        )
+
+    def finish(self, proc: subprocess.Popen, timeout: float) -> tuple[int, str]:
+        out, _ = proc.communicate(timeout=timeout)
+        return proc.returncode, out
+
+    def metrics(self) -> dict:
+        return json.loads((self.run_out / "metrics.json").read_text())
+
+    def truth(self) -> TruthLog:
+        return TruthLog.read(self.sim_out / TRUTH_FILE)
+
+    def judged(self) -> list:
+        return judge_hil(load_scenario(self.scenario), self.truth(), self.metrics())
+
+    def wait_for(self, predicate, timeout: float, what: str) -> None:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if predicate():
+                return
+            time.sleep(0.05)
+        raise AssertionError(f"timed out waiting for {what}")
+
+    def journal_completed(self) -> list[str]:
+        path = self.run_out / "journal.jsonl"
+        if not path.exists():
+            return []
+        done = []
+        for line in path.read_text().splitlines():
+            try:
+                record = json.loads(line)
+            except ValueError:
+                continue
+            if record.get("event") == "checkpoint-done":
+                done.append(record["checkpoint"])
+        return done
+
+    def stop_sim(self) -> str:
+        if self.sim.poll() is None:
+            self.sim.send_signal(2)
+        out, _ = self.sim.communicate(timeout=30)
+        return out
+
+    def close(self) -> None:
+        for proc in (self.sim,):
+            if proc.poll() is None:
+                proc.kill()
+                proc.communicate(timeout=10)

@@ -1,0 +1,178 @@
+"""``walkaround run`` against ``walkaround sim-robot``: real processes speaking the real
+wires (CAN frames per the DBC over python-can's udp_multicast, SCIP 2.0 and NMEA over TCP,
+detections over ZeroMQ, on this machine only), judged on the simulator's ground truth
+(issue 14). Each test runs in real time: about a minute and a half for the lab mission.
+"""
+
+from __future__ import annotations
+
+import http.client
+import json
+import math
+import re
+import signal
+import threading
+import time
+
+import can
+import pytest
+
+from executive.robotlink.canbase import load_dbc
+from tests.conftest import MISSIONS
+from tests.hil import LAB_MISSION, Hil
+
+# one rig at a time (two real-time processes each): on a 2-core machine the other pytest
+# worker's test is load enough beside it
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("hil")]
+
+TOLERANCE = (0.15, 5.0)  # the lab and track missions' checkpoint tolerance (m, deg)
+BRAKE_WITHIN = 0.15  # s: the issue's bound on both sides of a lost link
+
+
+@pytest.fixture
+def hil(tmp_path):
+    rigs: list[Hil] = []
+
+    def make(**kwargs) -> Hil:
+        rigs.append(Hil(tmp_path, **kwargs))
+        return rigs[-1]
+
+    yield make
+    for rig in rigs:
+        rig.close()
+
+
+def _assert_within_tolerance(rig: Hil, expected: list[str]) -> None:
+    judged = rig.judged()
+    assert [j.id for j in judged] == expected
+    for j in judged:
+        assert j.position_error <= TOLERANCE[0], j
+        assert j.heading_error_deg <= TOLERANCE[1], j
+    assert rig.truth().of_kind("collision") == []
+
+
+def test_the_lab_mission_over_the_wires(hil):
+    rig = hil()
+    run = rig.start_run()
+    code, out = rig.finish(run, timeout=400)
+    sim_out = rig.stop_sim()
+    assert code == 0, out + sim_out
+    assert "completed: mission completed; 3/3 checkpoints" in out
+    _assert_within_tolerance(rig, ["CP1", "CP2", "CP3"])
+    metrics = rig.metrics()
+    link = metrics["link"]
+    assert link["can"]["frames"]["bad_checksum"] == 0
+    assert link["can"]["frames"]["repeated_counter"] == 0
+    assert link["lasers"]["front"]["scans"] > 1000
+    assert link["gps"]["fixes"] > 0 and link["detections"]["accepted"] > 0
+    # the CAN log of the run decodes with the shipped DBC, both directions in it
+    db = load_dbc()
+    names = set()
+    with can.LogReader(str(rig.run_out / "can.blf")) as log:
+        for msg in log:
+            names.add(db.get_message_by_frame_id(msg.arbitration_id).name)
+            db.decode_message(msg.arbitration_id, msg.data)
+    assert {"MOTION_CMD", "EXEC_HEARTBEAT", "BASE_HEARTBEAT", "WHEEL_SPEEDS"} <= names
+
+
+def test_the_40_m_track_run_over_the_wires(hil):
+    scenario = MISSIONS / "track" / "scenarios" / "straight-run-40m.xml"
+    rig = hil(scenario=scenario)
+    run = rig.start_run(MISSIONS / "track" / "straight-run.xml")
+    code, out = rig.finish(run, timeout=500)
+    sim_out = rig.stop_sim()
+    assert code == 0, out + sim_out
+    _assert_within_tolerance(rig, ["CP1"])
+
+
+def test_killed_run_the_base_brakes_and_resume_finishes(hil):
+    rig = hil()
+    run = rig.start_run()
+    rig.wait_for(lambda: "CP1" in rig.journal_completed(), 200, "CP1 completed")
+    time.sleep(1.0)  # on the way to CP2
+    killed = time.time()
+    run.send_signal(signal.SIGKILL)
+    run.communicate(timeout=10)
+
+    def braked() -> list[dict]:
+        return [e for e in rig.truth().of_kind("watchdog") if e["unix"] >= killed - 0.2]
+
+    rig.wait_for(braked, 5, "the base's watchdog")
+    assert len(rig.truth().of_kind("watchdog")) == 1, "the watchdog never fired before"
+    fired = braked()[0]
+    # measured on the base's side: from the last valid heartbeat to the brake
+    assert fired["after_s"] <= BRAKE_WITHIN, fired
+    time.sleep(1.0)
+    truth = rig.truth()
+    still = [p for u, p in zip(truth.unix, truth.poses, strict=True) if u > fired["unix"] + 0.5]
+    assert len(still) >= 3
+    assert max(math.dist((p.x, p.y), (still[0].x, still[0].y)) for p in still) < 0.01
+
+    resumed = rig.start_run(LAB_MISSION, "--resume")
+    code, out = rig.finish(resumed, timeout=400)
+    sim_out = rig.stop_sim()
+    assert code == 0, out + sim_out
+    metrics = rig.metrics()
+    assert metrics["resumed_after"] == ["CP1"]
+    assert [c["id"] for c in metrics["checkpoints"]] == ["CP2", "CP3"]  # none twice, none skipped
+    _assert_within_tolerance(rig, ["CP2", "CP3"])
+
+
+def test_killed_simulator_the_run_stops_and_says_why(hil):
+    rig = hil()
+    run = rig.start_run()
+    rig.wait_for(lambda: (rig.run_out / "journal.jsonl").exists(), 30, "the run to start")
+    time.sleep(5.0)
+    rig.sim.send_signal(signal.SIGKILL)
+    code, out = rig.finish(run, timeout=30)
+    assert code == 1, out
+    reason = rig.metrics()["reason"]
+    lost = re.search(r"base heartbeat lost for ([0-9.]+) s", reason)
+    assert lost is not None, reason
+    assert float(lost.group(1)) <= BRAKE_WITHIN, reason
+    assert rig.metrics()["stop_sent"] in (True, False)  # said either way, never silent
+
+
+def test_dropped_lasers_foreign_frames_and_an_operator_without_the_secret(hil):
+    rig = hil(scenario=MISSIONS / "lab" / "scenarios" / "laser-link-drop.xml")
+    run = rig.start_run()
+    rig.wait_for(lambda: (rig.run_out / "operator.json").exists(), 30, "the operator endpoint")
+    address = json.loads((rig.run_out / "operator.json").read_text())
+    conn = http.client.HTTPConnection(address["host"], address["port"], timeout=5)
+    conn.request("POST", "/command", body=json.dumps({"command": "abort"}))
+    assert conn.getresponse().status == 401  # no secret: refused, the mission goes on
+    conn.request("POST", "/command", body=json.dumps({"command": "abort"}),
+                 headers={"Authorization": "Bearer guessed"})  # fmt: skip
+    assert conn.getresponse().status == 401
+    conn.close()
+
+    stop = threading.Event()
+    robot = rig.robot.read_text()
+    port = int(re.search(r'<can [^>]*port="(\d+)"', robot).group(1))
+
+    def flood() -> None:  # frames of identifiers the DBC does not know, ~500 a second
+        with can.Bus(interface="udp_multicast", channel="239.74.163.2", port=port,
+                     hop_limit=0) as bus:  # fmt: skip
+            k = 0
+            while not stop.is_set():
+                bus.send(can.Message(arbitration_id=0x555 + k % 7, data=[k % 256] * 8,
+                                     is_extended_id=False))  # fmt: skip
+                k += 1
+                time.sleep(0.002)
+
+    flooder = threading.Thread(target=flood, daemon=True)
+    flooder.start()
+    try:
+        code, out = rig.finish(run, timeout=400)
+    finally:
+        stop.set()
+        flooder.join(timeout=5)
+    sim_out = rig.stop_sim()
+    assert code == 0, out + sim_out
+    metrics = rig.metrics()
+    assert metrics["link"]["can"]["frames"]["unknown_frames"] > 1000
+    assert metrics["link"]["lasers"]["front"]["connections_lost"] >= 1
+    events = [json.loads(line) for line in (rig.run_out / "events.jsonl").read_text().splitlines()]
+    stale = [e for e in events if e.get("kind") == "stale-sensor" and "laser" in e["reason"]]
+    assert stale, "the dropped lasers held the robot"
+    _assert_within_tolerance(rig, ["CP1", "CP2", "CP3"])
