@@ -121,6 +121,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         except LinkError as exc:
             print(f"walkaround: cannot reach the robot: {exc}", file=sys.stderr)
             return EXIT_FAILED
+        # the operator's reset releases the base's own bumper latch too
+        operator.listeners.append(lambda c: link.request_reset() if c == "reset-estop" else None)
         endpoint = OperatorEndpoint(
             operator,
             out,

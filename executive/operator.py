@@ -48,6 +48,8 @@ class OperatorState:
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
     log: list[tuple[str, bool]] = field(default_factory=list)
     """Every command received, with whether it was accepted."""
+    listeners: list[Callable[[str], None]] = field(default_factory=list)
+    """Called with each accepted command (the robot link's reset of the base's latch)."""
 
     def apply(self, command: str) -> str:
         """Apply ``command``; the answer for the operator. Raises ValueError if unknown."""
@@ -70,6 +72,8 @@ class OperatorState:
             else:
                 self.aborted = True
             self.log.append((command, True))
+        for listener in self.listeners:
+            listener(command)
         return f"{command}: accepted"
 
     def __call__(self, now: float) -> OperatorRequests:

@@ -238,3 +238,71 @@ def test_a_link_fault_stops_the_robot_and_ends_the_run_with_its_reason():
     assert "robot link lost at 0.5 s: base heartbeat lost for 0.12 s" in result.reason
     assert robot.sent[-1].is_stop
     assert [e.kind for e in result.events if e.kind == "link-lost"] == ["link-lost"]
+
+
+# -- the link's own judgement ------------------------------------------------------------------
+class _Gps:
+    def __init__(self) -> None:
+        from executive.robotlink.nmea import NmeaCounts
+
+        self.counts_ = NmeaCounts()
+
+    def counts(self):
+        return self.counts_
+
+    def latest(self):
+        return None
+
+    def close(self) -> None:
+        pass
+
+
+def _link(clock, gps=None):
+    import can
+
+    from executive.robotlink.canbase import CanBaseLink
+    from executive.robotlink.link import RobotLink
+
+    bus = can.Bus(interface="virtual", channel=f"link-{id(clock)}")
+    return RobotLink(bus, CanBaseLink(bus, clock=clock.now), {}, gps, None, clock.now)
+
+
+def test_a_gps_stream_failing_its_checksums_is_a_link_fault_one_bad_sentence_is_not():
+    import dataclasses
+
+    clock = _Clock()
+    gps = _Gps()
+    link = _link(clock, gps)
+    try:
+        nmea = [f for f in link._nmea_faults()]
+        assert nmea == []
+        clock.t = 0.5
+        gps.counts_ = dataclasses.replace(gps.counts_, bad_checksum=1)
+        assert link._nmea_faults() == ()
+        clock.t = 3.0  # the old error has left the window
+        gps.counts_ = dataclasses.replace(gps.counts_, bad_checksum=2)
+        assert link._nmea_faults() == ()
+        for k in range(3):
+            clock.t = 3.1 + 0.1 * k
+            gps.counts_ = dataclasses.replace(gps.counts_, bad_checksum=3 + k)
+            faults = link._nmea_faults()
+        assert faults and "bad NMEA checksums" in faults[0]
+        assert "GPS:" in " ".join(link.link_faults())
+    finally:
+        link.close()
+
+
+def test_the_operators_reset_releases_the_base_latch_with_the_next_command():
+    clock = _Clock()
+    link = _link(clock)
+    sent = []
+    link.base.send_reset = lambda: sent.append("reset") or True  # type: ignore[method-assign]
+    try:
+        state = OperatorState()
+        state.listeners.append(lambda c: link.request_reset() if c == "reset-estop" else None)
+        state.apply("reset-estop")
+        link.send(VelocityCommand.stop())
+        link.send(VelocityCommand.stop())
+        assert sent == ["reset"]  # once, with the next command
+    finally:
+        link.close()

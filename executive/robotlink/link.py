@@ -25,11 +25,13 @@ from __future__ import annotations
 import contextlib
 import math
 import time
+from collections import deque
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from types import MappingProxyType
 
 import can
+import numpy as np
 
 from executive.core.model import Platform
 from executive.core.records import CameraFrame, SensorFrame, VelocityCommand, camera_ids
@@ -40,6 +42,24 @@ from executive.robotlink.nmea import GeoReference, NmeaClient
 from executive.robotlink.scip import ScipClient
 
 Clock = Callable[[], float]
+
+
+TIMING_WINDOW = 200_000
+"""Ticks of latency samples kept (an hour at 50 Hz)."""
+NMEA_BAD_LIMIT = 3
+NMEA_BAD_WINDOW = 1.0
+
+
+def _percentiles(samples: deque[float]) -> dict[str, float | int | None]:
+    if not samples:
+        return {"count": 0, "p50": None, "p99": None, "max": None}
+    ms = np.asarray(samples) * 1e3
+    return {
+        "count": len(ms),
+        "p50": round(float(np.percentile(ms, 50)), 3),
+        "p99": round(float(np.percentile(ms, 99)), 3),
+        "max": round(float(ms.max()), 3),
+    }
 
 
 class LinkError(Exception):
@@ -68,6 +88,13 @@ class RobotLink:
         self._recorder = recorder
         self._reset_requested = False
         self._closed = False
+        self._read_at = math.nan
+        self._newest_scan = math.nan
+        self.command_latency: deque[float] = deque(maxlen=TIMING_WINDOW)
+        """Seconds from a tick's read to its command handed to the bus."""
+        self.scan_to_command: deque[float] = deque(maxlen=TIMING_WINDOW)
+        """Seconds from the arrival of the newest laser scan a tick used to its command."""
+        self._nmea_errors: deque[tuple[float, int]] = deque()
 
     @classmethod
     def open(
@@ -132,8 +159,10 @@ class RobotLink:
     # -- RobotInterface ---------------------------------------------------------------------------
     def read(self) -> SensorFrame:
         now = self.clock()
+        self._read_at = now
         snapshot = self.base.snapshot()
         scans = {lid: scan for lid, client in self.lasers.items() if (scan := client.latest())}
+        self._newest_scan = max((scan.stamp for scan in scans.values()), default=math.nan)
         cameras: dict[str, CameraFrame] = (
             self.detections.latest() if self.detections is not None else {}
         )
@@ -150,10 +179,33 @@ class RobotLink:
             self._reset_requested = False
             self.base.send_reset()
         self.base.send(command, ExecState.RUNNING)
+        sent = self.clock()
+        if math.isfinite(self._read_at):
+            self.command_latency.append(sent - self._read_at)
+        if math.isfinite(self._newest_scan):
+            self.scan_to_command.append(sent - self._newest_scan)
 
     # -- health -----------------------------------------------------------------------------------
     def link_faults(self) -> tuple[str, ...]:
-        return tuple(self.base.health())
+        return (*self.base.health(), *self._nmea_faults())
+
+    def _nmea_faults(self) -> tuple[str, ...]:
+        """A GPS stream that keeps failing its checksums (a wiring or baud-rate fault, not
+        one flipped bit: :data:`NMEA_BAD_LIMIT` bad sentences within
+        :data:`NMEA_BAD_WINDOW` seconds) cannot be trusted; one bad sentence is dropped
+        and counted."""
+        if self.gps is None:
+            return ()
+        now = self.clock()
+        bad = self.gps.counts().bad_checksum
+        window = self._nmea_errors
+        window.append((now, bad))
+        while window and now - window[0][0] > NMEA_BAD_WINDOW:
+            window.popleft()
+        recent = bad - window[0][1]
+        if recent >= NMEA_BAD_LIMIT:
+            return (f"GPS: {recent} bad NMEA checksums within {NMEA_BAD_WINDOW:g} s",)
+        return ()
 
     def request_reset(self) -> None:
         """Send the base a BASE_RESET with the next command (the operator's reset of a
@@ -180,6 +232,8 @@ class RobotLink:
             return round(x * 1e3, 3) if math.isfinite(x) else None
 
         out: dict[str, object] = {
+            "command_latency_ms": _percentiles(self.command_latency),
+            "scan_to_command_ms": _percentiles(self.scan_to_command),
             "can": {
                 "frames": _plain(stats.frames),
                 "error_frames": stats.error_frames,
