@@ -176,3 +176,25 @@ def test_dropped_lasers_foreign_frames_and_an_operator_without_the_secret(hil):
     stale = [e for e in events if e.get("kind") == "stale-sensor" and "laser" in e["reason"]]
     assert stale, "the dropped lasers held the robot"
     _assert_within_tolerance(rig, ["CP1", "CP2", "CP3"])
+
+
+def test_sigterm_stops_the_robot_and_leaves_a_resumable_run(hil):
+    rig = hil()
+    run = rig.start_run()
+    rig.wait_for(lambda: (rig.run_out / "journal.jsonl").exists(), 30, "the run to start")
+    time.sleep(6.0)  # on the way to P
+    signalled = time.time()
+    run.send_signal(signal.SIGTERM)
+    code, out = rig.finish(run, timeout=30)
+    assert code == 143, out
+    assert "--resume" in out
+    metrics = rig.metrics()
+    assert metrics["outcome"] == "interrupted" and metrics["stop_sent"] is True
+    last = json.loads((rig.run_out / "journal.jsonl").read_text().splitlines()[-1])
+    assert last["event"] == "interrupted"
+    time.sleep(1.0)
+    truth = rig.truth()
+    after = [p for u, p in zip(truth.unix, truth.poses, strict=True) if u > signalled + 0.5]
+    assert len(after) >= 3
+    assert max(math.dist((p.x, p.y), (after[0].x, after[0].y)) for p in after) < 0.01
+    assert not (rig.run_out / "operator.secret").exists()  # the endpoint closed with the run
