@@ -208,9 +208,6 @@ REPORT_FILES = ("metrics.json", "events.jsonl", "trajectory.png", "timeline.png"
 """What a dry-run writes in its folder besides the journal; removed before a new run."""
 JOURNAL_FILE = "journal.jsonl"
 DEFAULT_MISSED_DEADLINES = 10
-SIGNALS = ("SIGINT", "SIGTERM", "SIGHUP")
-"""Signals that end a run safely: the robot is sent a stop, the journal is closed with an
-``interrupted`` record, a partial report is written; exit status 128 + the signal."""
 
 
 def _resume_command(args: argparse.Namespace, scenario: Path) -> str:
@@ -258,26 +255,15 @@ def _check_dry_run_arguments(args: argparse.Namespace) -> str | None:
 
 
 def cmd_dry_run(args: argparse.Namespace) -> int:
-    import signal
-
     from executive.compiler import CompileError
     from executive.journal import JournalWriteError
     from executive.runtime import StopRequest
+    from executive.signals import stop_on_signals
 
     stop = StopRequest()
-
-    def on_signal(signum: int, _frame: object) -> None:
-        if stop:  # a second signal: the first one's safe ending is not coming, go now
-            raise SystemExit(128 + signum)  # the runtime still sends its stop on the way out
-        stop.set(f"interrupted by {signal.Signals(signum).name}", signum)
-
-    previous = {}
-    for name in SIGNALS:
-        sig = getattr(signal, name, None)
-        if sig is not None and signal.getsignal(sig) is not signal.SIG_IGN:  # nohup stays
-            previous[sig] = signal.signal(sig, on_signal)
     try:
-        return _dry_run(args, stop)
+        with stop_on_signals(stop):
+            return _dry_run(args, stop)
     except InvalidInputError as exc:
         return _report(list(exc.problems))
     except CompileError as exc:
@@ -285,9 +271,6 @@ def cmd_dry_run(args: argparse.Namespace) -> int:
     except JournalWriteError as exc:
         print(f"walkaround: {exc.strerror or exc}", file=sys.stderr)
         return EXIT_FAILED
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
 
 
 def _dry_run(args: argparse.Namespace, stop: StopRequest) -> int:

@@ -10,38 +10,20 @@ from __future__ import annotations
 
 import argparse
 import math
-import signal
 import sys
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from executive.core.problems import InvalidInputError, Problem
 
+if TYPE_CHECKING:
+    from executive.core.model import Mission, Platform
+    from executive.robotlink.config import RobotConfig
+    from executive.runtime import StopRequest
+
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT = 0, 1, 2
-SIGNALS = ("SIGINT", "SIGTERM", "SIGHUP")
 JOURNAL_FILE = "journal.jsonl"
 CAN_LOG = "can.blf"
-
-
-@contextmanager
-def safe_signals(on_signal: Callable[[int], None]) -> Iterator[None]:
-    """Route SIGINT, SIGTERM and SIGHUP to ``on_signal`` (an ignored one stays ignored:
-    nohup) for the body, then restore the previous handlers."""
-    previous = {}
-
-    def handler(signum: int, _frame: object) -> None:
-        on_signal(signum)
-
-    for name in SIGNALS:
-        sig = getattr(signal, name, None)
-        if sig is not None and signal.getsignal(sig) is not signal.SIG_IGN:
-            previous[sig] = signal.signal(sig, handler)
-    try:
-        yield
-    finally:
-        for sig, old in previous.items():
-            signal.signal(sig, old)
 
 
 def _report(problems: list[Problem]) -> int:
@@ -55,7 +37,7 @@ def _bad(message: str) -> int:
     return EXIT_BAD_INPUT
 
 
-def _load_inputs(args: argparse.Namespace) -> tuple[object, object] | int:
+def _load_inputs(args: argparse.Namespace) -> tuple[Mission, RobotConfig] | int:
     """The mission and robot file, checked against each other; an exit code if bad."""
     from executive.cli import check_any
     from executive.core.loader import load_mission
@@ -65,92 +47,163 @@ def _load_inputs(args: argparse.Namespace) -> tuple[object, object] | int:
         problems = check_any(path)
         if problems:
             return _report(problems)
-    mission = load_mission(args.mission)
-    robot = load_robot(args.robot)
-    missing = robot.problems_with(mission.platform)
-    if missing:
-        return _bad(f"{args.robot}: " + "; ".join(missing))
-    return mission, robot
+    return load_mission(args.mission), load_robot(args.robot)
 
 
 # -- walkaround run ------------------------------------------------------------------------------
-def cmd_run(args: argparse.Namespace) -> int:
-    from executive.core.files import output_dir_problem, remove_if_present
-    from executive.journal import check_resumable, read_journal
-    from executive.operator import OperatorEndpoint, OperatorState
-    from executive.robotlink.link import LinkError, RobotLink
-    from executive.robotrun import REPORT_FILES, robot_run, write_robot_report
-    from executive.runtime import StopRequest
+WATCHDOG_PERIODS = 3.0
+"""The base's watchdog must span this many periods of the executive: a tick late by a
+period or two must not brake the base."""
+
+
+def _check_run_arguments(args: argparse.Namespace) -> str | None:
+    from executive.core.files import output_dir_problem
 
     if not (math.isfinite(args.rate) and 10.0 <= args.rate <= 50.0):
-        return _bad(f"--rate {args.rate:g}: the executive runs at 10 to 50 Hz")
+        return f"--rate {args.rate:g}: the executive runs at 10 to 50 Hz"
+    if args.max_time is not None and not (math.isfinite(args.max_time) and args.max_time > 0):
+        return f"--max-time {args.max_time}: seconds, more than 0"
+    if args.max_missed_deadlines < 0:
+        return f"--max-missed-deadlines {args.max_missed_deadlines}: 0 (never) or more"
     problem = output_dir_problem(args.out)
     if problem:
-        return _bad(f"--out {problem}")
+        return f"--out {problem}"
+    journal = args.out / JOURNAL_FILE
+    if args.resume and (journal.is_symlink() or not journal.exists()):
+        return f"--resume: the journal {journal} does not exist; nothing to resume"
+    return None
+
+
+def _robot_problems(robot: RobotConfig, platform: Platform, rate: float) -> list[str]:
+    """What makes this robot file unfit for this mission at this rate: a platform sensor
+    without its wire, a limit the DBC cannot carry, a watchdog shorter than the ticks."""
+    from executive.robotlink.canbase import load_dbc
+
+    problems = robot.problems_with(platform)
+    db = load_dbc()
+    for message, signal, limit, what in (
+        ("MOTION_CMD", "V", platform.max_speed, "max-speed"),
+        ("MOTION_CMD", "OMEGA", platform.max_angular_speed, "max-angular-speed"),
+        *(
+            ("PTU_CMD", "PAN_RATE", cam.pan_rate, f"camera '{cid}' pan rate")
+            for cid, cam in platform.cameras.items()
+        ),
+        *(
+            ("PTU_CMD", "TILT_RATE", cam.tilt_rate, f"camera '{cid}' tilt rate")
+            for cid, cam in platform.cameras.items()
+        ),
+    ):
+        high = db.get_message_by_name(message).get_signal_by_name(signal).maximum
+        if high is not None and limit > high:
+            problems.append(
+                f"the platform's {what} {limit:g} is more than the CAN frame carries "
+                f"({message}.{signal} at most {high:g})"
+            )
+    if robot.can.watchdog < WATCHDOG_PERIODS / rate:
+        problems.append(
+            f"the base's watchdog ({robot.can.watchdog * 1e3:g} ms) must span "
+            f"{WATCHDOG_PERIODS:g} ticks at {rate:g} Hz ({WATCHDOG_PERIODS / rate * 1e3:g} ms): "
+            "raise --rate or watchdog-ms"
+        )
+    return problems
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from executive.compiler import CompileError
+    from executive.journal import JournalWriteError
+    from executive.runtime import StopRequest
+    from executive.signals import stop_on_signals
+
+    stop = StopRequest()
+    try:
+        with stop_on_signals(stop):
+            return _run(args, stop)
+    except (InvalidInputError, CompileError) as exc:
+        return _report(list(exc.problems))
+    except JournalWriteError as exc:
+        print(f"walkaround: {exc.strerror or exc}; the robot was sent a stop", file=sys.stderr)
+        return EXIT_FAILED
+
+
+def _run(args: argparse.Namespace, stop: StopRequest) -> int:
+    from executive.core.files import remove_if_present
+    from executive.journal import check_resumable, check_resume_pose, read_journal
+    from executive.operator import OperatorEndpoint, OperatorState
+    from executive.robotlink.link import LinkError, RobotLink
+    from executive.robotrun import REPORT_FILES, NotStartedError, robot_run, write_robot_report
+    from executive.runtime import WallClock
+
+    bad = _check_run_arguments(args)
+    if bad:
+        return _bad(bad)
     loaded = _load_inputs(args)
     if isinstance(loaded, int):
         return loaded
     mission, robot = loaded
+    problems = _robot_problems(robot, mission.platform, args.rate)
+    if problems:
+        return _bad(f"{args.robot}: " + "; ".join(problems))
     out: Path = args.out
     journal = out / JOURNAL_FILE
     state = None
     if args.resume:
-        try:
-            state = read_journal(journal)
-            check_resumable(state, mission, journal)  # type: ignore[arg-type]
-        except InvalidInputError as exc:
-            return _report(list(exc.problems))
+        state = read_journal(journal)  # InvalidInputError: exit 2 at the journal's line
+        check_resumable(state, mission, journal)
         if state.ended == "completed":
             print(f"mission already completed (journal {journal}): the robot is not moved")
             return EXIT_OK
+        check_resume_pose(state, mission, journal)
     out.mkdir(parents=True, exist_ok=True)
-    for name in REPORT_FILES if args.resume else (*REPORT_FILES, JOURNAL_FILE):
-        remove_if_present(out / name)
 
-    stop = StopRequest()
+    def clear_old_report() -> None:
+        """Once the robot answered: a run that cannot start destroys nothing."""
+        for name in REPORT_FILES if args.resume else (*REPORT_FILES, JOURNAL_FILE):
+            remove_if_present(out / name)
 
-    def on_signal(signum: int) -> None:
-        if stop:
-            raise SystemExit(128 + signum)
-        stop.set(f"interrupted by {signal.Signals(signum).name}", signum)
-
+    clock = WallClock()
     operator = OperatorState()
-    with safe_signals(on_signal):
-        try:
-            link = RobotLink.open(robot, mission.platform, can_log=out / CAN_LOG)  # type: ignore[arg-type]
-        except LinkError as exc:
-            print(f"walkaround: cannot reach the robot: {exc}", file=sys.stderr)
-            return EXIT_FAILED
+    try:
+        link = RobotLink.open(robot, mission.platform, clock=clock.now, can_log=_can_log(out))
+    except LinkError as exc:
+        print(f"walkaround: cannot reach the robot: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+    endpoint = None
+    try:
         # the operator's reset releases the base's own bumper latch too
         operator.listeners.append(lambda c: link.request_reset() if c == "reset-estop" else None)
         endpoint = OperatorEndpoint(
             operator,
             out,
             status=lambda: {"stop": stop.reason, **link.status()},
-            host=robot.operator.host,  # type: ignore[attr-defined]
-            port=robot.operator.port,  # type: ignore[attr-defined]
+            host=robot.operator.host,
+            port=robot.operator.port,
         )
         print(f"operator endpoint on {endpoint.host}:{endpoint.port} (secret in {out})")
-        try:
-            run = robot_run(
-                mission,  # type: ignore[arg-type]
-                link,
-                rate_hz=args.rate,
-                journal_path=journal,
-                resume=state,
-                operator=operator,
-                stop=stop,
-                max_missed_deadlines=args.max_missed_deadlines or None,
-                max_time=args.max_time,
-                progress_out=None if args.quiet else sys.stderr,
-                servo=args.servo,
-            )
-        except LinkError as exc:
-            print(f"walkaround: cannot start: {exc}; the robot was not moved", file=sys.stderr)
-            return EXIT_FAILED
-        finally:
+        run = robot_run(
+            mission,
+            link,
+            clock=clock,
+            rate_hz=args.rate,
+            journal_path=journal,
+            resume=state,
+            operator=operator,
+            stop=stop,
+            max_missed_deadlines=args.max_missed_deadlines or None,
+            max_time=args.max_time,
+            progress_out=None if args.quiet else sys.stderr,
+            servo=args.servo,
+            before_start=clear_old_report,
+        )
+    except NotStartedError as exc:
+        print(f"walkaround: {exc}", file=sys.stderr)
+        return 128 + (stop.signal or 0)
+    except (LinkError, OSError) as exc:
+        print(f"walkaround: cannot start: {exc}; the robot was not moved", file=sys.stderr)
+        return EXIT_FAILED
+    finally:
+        link.close()  # first: the base holds on its watchdog whatever comes next
+        if endpoint is not None:
             endpoint.close()
-            link.close()
     write_robot_report(run, out)
     result = run.result
     stopped = "the robot was sent a stop" if result.stop_sent else "the stop was NOT confirmed"
@@ -164,11 +217,21 @@ def cmd_run(args: argparse.Namespace) -> int:
     return EXIT_OK if run.succeeded else EXIT_FAILED
 
 
+def _can_log(out: Path) -> Path:
+    """``can.blf``, or ``can-2.blf``, ... for a resumed run: no run's log is overwritten."""
+    path, k = out / CAN_LOG, 1
+    while path.exists() or path.is_symlink():
+        k += 1
+        path = out / f"can-{k}.blf"
+    return path
+
+
 # -- walkaround sim-robot ------------------------------------------------------------------------
 def cmd_sim_robot(args: argparse.Namespace) -> int:
     from executive.cli import check_any
     from executive.core.files import output_dir_problem
     from executive.robotlink.config import load_robot
+    from executive.signals import routed_signals
     from executive.simrobot import serve
     from sim2d.scenario import load_scenario
 
@@ -189,7 +252,7 @@ def cmd_sim_robot(args: argparse.Namespace) -> int:
     def on_signal(signum: int) -> None:
         stopping.append(signum)
 
-    with safe_signals(on_signal):
+    with routed_signals(on_signal):
         summary = serve(
             scenario, robot, args.out, should_stop=lambda: bool(stopping), max_time=args.max_time
         )

@@ -142,8 +142,13 @@ class Journal:
         *,
         append: bool = False,
         keep_bytes: int | None = None,
+        pose_period: float | None = None,
     ) -> None:
+        """``pose_period``: also record the pose estimate every so many seconds (a robot
+        run: a resume starts from where the robot stood, not its last checkpoint)."""
         self.path = path
+        self.pose_period = pose_period
+        self._pose_at = -math.inf
         if isinstance(binding, str):  # a bare mission id: a journal for tests and tools
             binding = MissionBinding(binding, "", "", ())
         self.binding = binding
@@ -218,6 +223,12 @@ class Journal:
         if progress.phase != last.phase:
             self.write({"t": round(t, 3), "event": "phase", "phase": progress.phase})
         self._last = progress
+        period = self.pose_period
+        due = period is not None and t - self._pose_at >= period
+        if due and pose is not None and all(math.isfinite(v) for v in pose):
+            self._pose_at = t
+            pose_a = [round(v, 6) for v in pose]
+            self.write({"t": round(t, 3), "event": "pose", "pose_a": pose_a})
 
     def close(self) -> None:
         if self._fd is not None:
@@ -246,6 +257,10 @@ class JournalState:
     end_t: float | None = None
     keep_bytes: int = 0
     """Bytes of whole lines: a torn last line starts here and is cut off on append."""
+    last_pose: tuple[float, float, float] | None = None
+    """The latest pose estimate in A the journal recorded (``pose`` records of a robot
+    run, every :data:`POSE_PERIOD`): where a robot stopped mid-leg really stands, which
+    its last checkpoint's pose is not."""
 
 
 MAX_MAGNITUDE = 1e6
@@ -318,6 +333,7 @@ _FIELDS: dict[str, dict[str, tuple[Check, str]]] = {
         "heading_error_deg": (_optional_number, "a number or null"),
     },
     "resume": {"t": (_number, "a number")},
+    "pose": {"t": (_number, "a number"), "pose_a": (_triple, "three numbers")},
     "interrupted": {"t": (_number, "a number"), "reason": (_str, "a string")},
     "stopped": {"t": (_number, "a number"), "reason": (_str, "a string")},
     "mission-end": {"t": (_number, "a number"), "outcome": (_str, "a string")},
@@ -357,7 +373,7 @@ def read_journal(path: Path) -> JournalState:
     results: list[ItemResult] = []
     truth: dict[str, dict[str, object]] = {}
     phase, checkpoint = "approach", None
-    pose = None
+    pose = last_pose = None
     ended = end_t = None
     for number, raw in enumerate(lines, start=1):
         if len(raw) > MAX_LINE_BYTES:
@@ -429,6 +445,8 @@ def read_journal(path: Path) -> JournalState:
             truth[cp] = {k: v for k, v in record.items() if k != "event"}
         elif event == "mission-end":
             ended, end_t = record["outcome"], float(record["t"])
+        elif event == "pose":
+            last_pose = tuple(float(v) for v in record["pose_a"])
         elif event == "resume":  # what a stopped attempt inspected is done again
             ended = end_t = None
             results = [r for r in results if r.checkpoint in completed]
@@ -446,6 +464,7 @@ def read_journal(path: Path) -> JournalState:
         ended=ended,
         end_t=end_t,
         keep_bytes=keep,
+        last_pose=last_pose,  # type: ignore[arg-type]
     )
 
 

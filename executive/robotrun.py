@@ -12,8 +12,10 @@ loop simulator's ground truth can judge the run afterwards (:mod:`executive.hil`
 
 from __future__ import annotations
 
+import gc
 import json
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TextIO
@@ -28,6 +30,7 @@ from executive.journal import Journal, JournalState, MissionBinding
 from executive.operator import OperatorState
 from executive.runtime import (
     DEFAULT_MAX_MISSED_DEADLINES,
+    Clock,
     RunResult,
     Runtime,
     StopRequest,
@@ -36,6 +39,9 @@ from executive.runtime import (
 from executive.safety import SafetyLayer
 
 REPORT_FILES = ("metrics.json", "events.jsonl")
+POSE_PERIOD = 0.2
+"""Seconds between the pose records of a robot run's journal: a run killed mid-leg resumes
+from where the robot stood at most this long before (it brakes within 0.15 s)."""
 
 
 @dataclass
@@ -65,7 +71,8 @@ class RobotRun:
 
 
 class _Watcher:
-    """Per tick: checkpoint completions with their time, and the progress line."""
+    """Per tick: checkpoint completions with their time, and the progress line (on a
+    terminal only: a log file gets the summary line)."""
 
     def __init__(self, mission: Mission, out: TextIO | None, done: tuple[str, ...]) -> None:
         self.n = len(mission.checkpoints)
@@ -92,7 +99,7 @@ class _Watcher:
                         pose.sigma_f if isinstance(pose, PoseEstimate) else None,
                     )
                 )
-        if self.out is not None and t >= self._next_print:
+        if self.out is not None and t >= self._next_print and self.out.isatty():
             self._next_print = t + 1.0
             self.out.write(
                 f"\r{t:6.1f} s  {len(self.seen)}/{self.n} checkpoints  "
@@ -100,11 +107,20 @@ class _Watcher:
             )
             self.out.flush()
 
+    def close(self) -> None:
+        if self.out is not None and self.out.isatty():
+            self.out.write("\n")
+
+
+class NotStartedError(Exception):
+    """A signal came while the base was being brought up: nothing was changed."""
+
 
 def robot_run(
     mission: Mission,
     link: object,
     *,
+    clock: Clock | None = None,
     rate_hz: float = 50.0,
     journal_path: Path | None = None,
     resume: JournalState | None = None,
@@ -114,15 +130,23 @@ def robot_run(
     max_time: float | None = None,
     progress_out: TextIO | None = None,
     servo: bool | None = None,
+    before_start: Callable[[], None] | None = None,
 ) -> RobotRun:
     """Run ``mission`` on the robot behind ``link`` (a RobotInterface) on the wall clock.
 
-    Everything slow (compiling the tree, opening the journal) happens before the link is
+    ``clock`` must be the one the link stamps its readings with (default: a new
+    :class:`WallClock`). Everything slow (compiling the tree, a full garbage collection,
+    after which the run's long-lived objects are frozen) happens before the link is
     brought up (its ``wait_ready``, if it has one): from then on a tick feeds the base's
-    watchdog every period. Raises what ``wait_ready`` raises when the base is not ready.
+    watchdog every period. Then ``before_start`` (the CLI clears the old report) and the
+    journal. Raises what ``wait_ready`` raises when the base is not ready, and
+    :class:`NotStartedError` when ``stop`` was set meanwhile.
     """
+    stop = stop if stop is not None else StopRequest()
+    clock = clock or WallClock()
     progress = resume.progress if resume is not None else None
-    start = Pose2(*resume.pose_a) if resume is not None and resume.pose_a else None
+    where = resume.last_pose or resume.pose_a if resume is not None else None
+    start = Pose2(*where) if where else None  # where the robot stood when it stopped
     compiled = compile_mission(
         mission,
         CompileOptions(rate_hz=rate_hz, start=start, resume=progress, servo=servo),
@@ -130,45 +154,53 @@ def robot_run(
     safety = SafetyLayer(
         mission, compiled.placement, 1.0 / rate_hz, geofence_margin=mission.safety.geofence_margin
     )
-    journal = None
-    if journal_path is not None:
-        journal = Journal(
-            journal_path,
-            MissionBinding.of(mission),
-            append=resume is not None,
-            keep_bytes=resume.keep_bytes if resume is not None else None,
-        )
-        if progress is not None:
-            journal.resume_from(progress)
-            journal.write({"event": "resume", "t": 0.0})
     done = progress.completed if progress is not None else ()
     watcher = _Watcher(mission, progress_out, done)
-    ready = getattr(link, "wait_ready", None)
-    if callable(ready):  # last, so that the base's watchdog is fed from here on
-        ready()
-    runtime = Runtime(
-        compiled,
-        link,  # type: ignore[arg-type]
-        WallClock(),
-        safety,
-        rate_hz=rate_hz,
-        journal=journal,
-        operator=operator,
-        on_tick=watcher,
-        stop=stop,
-        max_missed_deadlines=max_missed_deadlines,
-    )
-    wall_start = time.time()
+    gc.collect()
+    gc.freeze()  # no full collection walks the tree and maps mid-run (see runtime)
     try:
-        result = runtime.run(max_time if max_time is not None else float("inf"))
+        ready = getattr(link, "wait_ready", None)
+        if callable(ready) and not ready(should_stop=lambda: bool(stop)):
+            raise NotStartedError(f"{stop.reason} before the run started; nothing changed")
+        if before_start is not None:
+            before_start()
+        journal = None
+        if journal_path is not None:
+            journal = Journal(
+                journal_path,
+                MissionBinding.of(mission),
+                append=resume is not None,
+                keep_bytes=resume.keep_bytes if resume is not None else None,
+                pose_period=POSE_PERIOD,
+            )
+            if progress is not None:
+                journal.resume_from(progress)
+                journal.write({"event": "resume", "t": round(clock.now(), 3)})
+        runtime = Runtime(
+            compiled,
+            link,  # type: ignore[arg-type]
+            clock,
+            safety,
+            rate_hz=rate_hz,
+            journal=journal,
+            operator=operator,
+            on_tick=watcher,
+            stop=stop,
+            max_missed_deadlines=max_missed_deadlines,
+        )
+        wall_start = time.time()
+        try:
+            result = runtime.run(max_time if max_time is not None else float("inf"))
+        finally:
+            watcher.close()
     finally:
-        if progress_out is not None:
-            progress_out.write("\n")
+        gc.unfreeze()
     if journal is not None:
+        t_end = round(clock.now(), 3)
         end: dict[str, object] = (
-            {"t": round(result.duration, 3), "event": "interrupted", "reason": result.reason}
+            {"t": t_end, "event": "interrupted", "reason": result.reason}
             if result.outcome == "interrupted"
-            else {"t": round(result.duration, 3), "event": "mission-end", "outcome": result.outcome}
+            else {"t": t_end, "event": "mission-end", "outcome": result.outcome}
         )
         try:
             journal.write(end)

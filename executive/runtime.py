@@ -423,7 +423,10 @@ class Runtime:
                 outcome, reason = "interrupted", f"{self.stop.reason} at {now:.1f} s"
                 self._stop_safely(now, "interrupted", reason)
                 break
-            faults = self._link.link_faults() if self._link is not None else ()
+            try:
+                faults = self._link.link_faults() if self._link is not None else ()
+            except Exception as exc:  # judging the link failed: it cannot be trusted
+                faults = (f"link health check raised {exc!r}",)
             if faults:
                 outcome, reason = "failed", f"robot link lost at {now:.1f} s: {'; '.join(faults)}"
                 self._stop_safely(now, "link-lost", reason)

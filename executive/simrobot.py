@@ -21,6 +21,7 @@ sees it.
 from __future__ import annotations
 
 import datetime as dt
+import gc
 import json
 import math
 import time
@@ -165,6 +166,8 @@ def serve(
     braked_at: float | None = None
     collisions = 0
     gps_rate = scenario.gps.rate_hz
+    gc.collect()
+    gc.freeze()  # the scene and the wires: no full collection stalls the base's heartbeat
     with (out / TRUTH_FILE).open("w", encoding="utf-8") as truth:
         try:
             while not should_stop() and sim.time < end:
@@ -190,16 +193,14 @@ def serve(
                 fired = wires.firmware.watchdog_fired_at
                 if fired is not None and fired != braked_at:
                     braked_at = fired
-                    last = wires.firmware.heartbeat_at
                     _event(
                         truth,
                         {
                             "event": "watchdog",
                             "unix": time.time(),
                             "base_clock": fired,
-                            "last_heartbeat": last,
-                            "after_s": None if last is None else fired - last,
-                            "v": command.v,
+                            "after_s": wires.firmware.watchdog_fired_after,
+                            "v": wires.firmware.command().v,
                         },
                     )
                     truth.flush()
@@ -224,6 +225,7 @@ def serve(
                     time.sleep(delay)
         finally:
             wires.close()
+            gc.unfreeze()
     lag = clock() - sim.time
     return (
         f"sim-robot: {sim.time:.1f} s served ({lag:+.2f} s behind real time), "

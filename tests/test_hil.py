@@ -51,6 +51,17 @@ def _assert_within_tolerance(rig: Hil, expected: list[str]) -> None:
     assert rig.truth().of_kind("collision") == []
 
 
+def _assert_moving(rig: Hil) -> None:
+    """The robot drives now (ground truth over the last half second): a stop after this
+    is the stop under test, not a pause of the mission."""
+    truth = rig.truth()
+    recent = [p for u, p in zip(truth.unix, truth.poses, strict=True) if u > time.time() - 0.6]
+    assert (
+        len(recent) >= 2
+        and math.dist((recent[0].x, recent[0].y), (recent[-1].x, recent[-1].y)) > 0.02
+    ), "the robot stands still: the test would prove nothing"
+
+
 def test_the_lab_mission_over_the_wires(hil):
     rig = hil()
     run = rig.start_run()
@@ -90,6 +101,7 @@ def test_killed_run_the_base_brakes_and_resume_finishes(hil):
     run = rig.start_run()
     rig.wait_for(lambda: "CP1" in rig.journal_completed(), 200, "CP1 completed")
     time.sleep(1.0)  # on the way to CP2
+    _assert_moving(rig)
     killed = time.time()
     run.send_signal(signal.SIGKILL)
     run.communicate(timeout=10)
@@ -130,7 +142,7 @@ def test_killed_simulator_the_run_stops_and_says_why(hil):
     lost = re.search(r"base heartbeat lost for ([0-9.]+) s", reason)
     assert lost is not None, reason
     assert float(lost.group(1)) <= BRAKE_WITHIN, reason
-    assert rig.metrics()["stop_sent"] in (True, False)  # said either way, never silent
+    assert "robot link lost" in out and "base heartbeat lost" in out
 
 
 def test_dropped_lasers_foreign_frames_and_an_operator_without_the_secret(hil):
@@ -183,6 +195,7 @@ def test_sigterm_stops_the_robot_and_leaves_a_resumable_run(hil):
     run = rig.start_run()
     rig.wait_for(lambda: (rig.run_out / "journal.jsonl").exists(), 30, "the run to start")
     time.sleep(6.0)  # on the way to P
+    _assert_moving(rig)
     signalled = time.time()
     run.send_signal(signal.SIGTERM)
     code, out = rig.finish(run, timeout=30)
@@ -198,3 +211,7 @@ def test_sigterm_stops_the_robot_and_leaves_a_resumable_run(hil):
     assert len(after) >= 3
     assert max(math.dist((p.x, p.y), (after[0].x, after[0].y)) for p in after) < 0.01
     assert not (rig.run_out / "operator.secret").exists()  # the endpoint closed with the run
+    # the robot was told to stop before the run let go of the link: when the base's
+    # watchdog fired (the heartbeat ended with the process) its command was already zero
+    braked = [e for e in truth.of_kind("watchdog") if e["unix"] >= signalled]
+    assert braked and all(e["v"] == 0.0 for e in braked), braked

@@ -362,3 +362,26 @@ def test_a_deeply_nested_line_is_refused(tmp_path, capsys):
     _write_journal(tmp_path / "out", binding + "\n" + "[" * 100_000 + "]" * 100_000 + "\n")
     code, text = _resume(tmp_path / "out", capsys)
     assert code == 2 and "journal.jsonl:2:" in text
+
+
+def test_a_robot_runs_journal_keeps_where_the_robot_stood(tmp_path):
+    """A robot run (pose_period) records its pose estimate as it goes: a run killed
+    mid-leg resumes from where the robot stood, not from its last checkpoint."""
+    from behaviours.keys import MissionProgress
+    from executive.journal import Journal, read_journal
+
+    path = tmp_path / "journal.jsonl"
+    journal = Journal(path, "m", pose_period=0.5)
+    journal.record(0.0, MissionProgress(), (1.0, 2.0, 0.1))
+    journal.record(0.2, MissionProgress(), (1.1, 2.0, 0.1))  # within the period: not kept
+    journal.record(0.6, MissionProgress(), (1.5, 2.0, 0.2))
+    journal.record(0.7, MissionProgress(), (float("nan"), 2.0, 0.2))
+    journal.close()
+    state = read_journal(path)
+    assert state.last_pose == (1.5, 2.0, 0.2)
+    assert state.pose_a is None  # the last checkpoint's pose is another thing
+    plain = tmp_path / "plain.jsonl"
+    journal = Journal(plain, "m")  # a dry-run's journal: no pose records
+    journal.record(0.6, MissionProgress(), (1.5, 2.0, 0.2))
+    journal.close()
+    assert read_journal(plain).last_pose is None

@@ -200,7 +200,7 @@ class _FaultyRobot:
         return SensorFrame(stamp=self.clock.now())
 
     def send(self, command: VelocityCommand) -> None:
-        self.sent.append(command)
+        self.sent.append((self.clock.now(), command))
 
     def link_faults(self) -> tuple[str, ...]:
         if self.clock.now() >= self.fail_at:
@@ -236,7 +236,9 @@ def test_a_link_fault_stops_the_robot_and_ends_the_run_with_its_reason():
     result = Runtime(compiled, robot, clock, safety, rate_hz=50.0).run(10.0)
     assert result.outcome == "failed"
     assert "robot link lost at 0.5 s: base heartbeat lost for 0.12 s" in result.reason
-    assert robot.sent[-1].is_stop
+    assert result.duration == pytest.approx(0.5, abs=0.021)  # ended at the fault's tick
+    at_fault = [c for t, c in robot.sent if t >= 0.5]
+    assert at_fault and all(c.is_stop for c in at_fault)
     assert [e.kind for e in result.events if e.kind == "link-lost"] == ["link-lost"]
 
 
@@ -306,3 +308,58 @@ def test_the_operators_reset_releases_the_base_latch_with_the_next_command():
         assert sent == ["reset"]  # once, with the next command
     finally:
         link.close()
+
+
+def test_run_refuses_a_rate_whose_ticks_the_watchdog_cannot_span(tmp_path, capsys):
+    code = main(["run", str(MISSIONS / "lab" / "visual-servoing.xml"), "--robot", str(HIL),
+                 "--out", str(tmp_path / "out"), "--rate", "20"])  # fmt: skip
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "watchdog (100 ms) must span 3 ticks at 20 Hz (150 ms)" in err
+
+
+def test_a_platform_faster_than_the_can_frame_is_refused():
+    import dataclasses
+
+    from executive.cli_robot import _robot_problems
+
+    platform = load_mission(MISSIONS / "lab" / "visual-servoing.xml").platform
+    fast = dataclasses.replace(platform, max_speed=3.0)
+    problems = _robot_problems(load_robot(HIL), fast, 50.0)
+    assert problems == [
+        "the platform's max-speed 3 is more than the CAN frame carries (MOTION_CMD.V at most 2)"
+    ]
+    assert _robot_problems(load_robot(HIL), platform, 50.0) == []
+
+
+def test_bringing_the_base_up_ends_on_a_signal_and_sends_a_pending_reset():
+    clock = _Clock()
+    link = _link(clock)
+    sent = []
+    link.base.send_reset = lambda: sent.append("reset") or True  # type: ignore[method-assign]
+    try:
+        link.request_reset()
+        asked: list[int] = []
+
+        def second_time() -> bool:  # a signal while the base does not answer yet
+            asked.append(1)
+            return len(asked) > 1
+
+        assert link.wait_ready(timeout=5.0, should_stop=second_time) is False
+        assert sent == ["reset"]
+    finally:
+        link.close()
+
+
+def test_a_cycle_that_did_not_go_out_raises_and_close_sends_enable_0():
+    from executive.robotlink.canbase import ExecState
+    from executive.robotlink.link import LinkError
+
+    clock = _Clock()
+    link = _link(clock)
+    states = []
+    link.base.send = lambda command, state: states.append(state) or False  # type: ignore
+    with pytest.raises(LinkError, match="did not all go out"):
+        link.send(VelocityCommand(v=0.3))
+    link.close()
+    assert states[-1] is ExecState.IDLE  # the final stop with ENABLE 0

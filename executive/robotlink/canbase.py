@@ -32,7 +32,7 @@ from collections import Counter, deque
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from enum import IntEnum, StrEnum
-from types import MappingProxyType, TracebackType
+from types import MappingProxyType
 from typing import NamedTuple
 
 import can
@@ -48,6 +48,7 @@ from executive.core.records import (
     VelocityCommand,
     WheelSpeeds,
 )
+from executive.robotlink.wire import Wire
 
 Clock = Callable[[], float]
 Signals = Mapping[str, float]
@@ -283,10 +284,9 @@ def invalid_value(message: DbcMessage, signals: Signals) -> str | None:
             return f"{signal.name}={value}{unit} is not finite"
         if signal.choices is not None and int(value) not in signal.choices:
             return f"{signal.name}={value} is not in its value table"
-        tolerance = abs(signal.scale) / 2.0
         low = signal.minimum if signal.minimum is not None else -math.inf
         high = signal.maximum if signal.maximum is not None else math.inf
-        if not low - tolerance <= value <= high + tolerance:
+        if not low <= value <= high:
             return f"{signal.name}={value:g}{unit} is outside [{low:g}, {high:g}]"
     return None
 
@@ -485,6 +485,7 @@ class _Events:
     refusal: tuple[float, str] | None = None
     repeat: tuple[float, str, int] | None = None
     heartbeat_sent_at: float | None = None
+    watchdog_braking_at: float | None = None
 
 
 _LATENCY_WINDOW = 4096
@@ -508,7 +509,7 @@ class _Receiver(can.Listener):
         self._link._on_receive_error(exc)
 
 
-class CanBaseLink:
+class CanBaseLink(Wire):
     """The executive's end of the drive base's CAN bus.
 
     A python-can :class:`~can.Notifier` thread checks every received frame (length,
@@ -543,6 +544,7 @@ class CanBaseLink:
         self._events = _Events()
         self._latencies: deque[float] = deque(maxlen=_LATENCY_WINDOW)
         self._latency_count = 0
+        self._sent_listeners: list[Callable[[can.Message], None]] = []
         self._notifier = can.Notifier(bus, [_Receiver(self)], timeout=0.05)
 
     # -- lifecycle
@@ -551,19 +553,8 @@ class CanBaseLink:
         if not self._notifier.stopped:
             self._notifier.stop(timeout=1.0)
 
-    def __enter__(self) -> CanBaseLink:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
-
     # -- sending
-    def send(self, command: VelocityCommand, state: ExecState = ExecState.RUNNING) -> None:
+    def send(self, command: VelocityCommand, state: ExecState = ExecState.RUNNING) -> bool:
         """One control cycle: MOTION_CMD, one PTU_CMD per unit of ``command``, then
         EXEC_HEARTBEAT. A command the DBC cannot carry (not finite, out of range, an
         unknown unit) is refused: a braking stop goes out instead and :meth:`health`
@@ -582,6 +573,7 @@ class CanBaseLink:
                 self._events.refusal = (now, refusal)
             if sent:
                 self._events.heartbeat_sent_at = now
+        return sent
 
     def send_reset(self) -> bool:
         """Ask the base to clear its bumper latch (the operator's reset); True when the
@@ -624,7 +616,16 @@ class CanBaseLink:
                     self._counts["send_errors"] += 1
                     self._events.send_error = (now, str(exc) or type(exc).__name__)
                 return False
+            for listener in self._sent_listeners:
+                listener(frame)
         return True
+
+    def add_listener(self, listener: can.Listener) -> None:
+        """Hand ``listener`` every frame of the bus, received (the notifier's thread) and
+        sent (after it went out): a run's log of both directions on the link's own bus,
+        which some interfaces let only one process or handle open."""
+        self._notifier.add_listener(listener)
+        self._sent_listeners.append(listener.on_message_received)
 
     # -- receiving (the notifier's thread)
     def _on_frame(self, msg: can.Message) -> None:
@@ -676,6 +677,8 @@ class CanBaseLink:
             case "BASE_HEARTBEAT":
                 state = BaseState(int(s["STATE"]))
                 latest = dataclasses.replace(latest, base_state=state, heartbeat_at=now)
+                if state is BaseState.BRAKING_WATCHDOG:
+                    self._events.watchdog_braking_at = now
             case "BASE_STATUS":
                 latest = dataclasses.replace(
                     latest,
@@ -726,6 +729,12 @@ class CanBaseLink:
         reasons += _base_reasons(latest)
         return list(dict.fromkeys(reasons))
 
+    def holds(self) -> list[str]:
+        """Why the base brakes by its own rules (bumper latch, hardware e-stop): not a
+        link fault, the run waits for the operator (:func:`base_holds`)."""
+        with self._lock:
+            return base_holds(self._latest)
+
     def _heartbeat_reasons(self, latest: BaseSnapshot, events: _Events, now: float) -> list[str]:
         reasons = []
         timeout, watchdog = self.config.base_timeout, self.config.watchdog
@@ -757,6 +766,8 @@ class CanBaseLink:
             reasons.append(f"CAN receive failed: {events.receive_error[1]}")
         if events.refusal is not None and recent(events.refusal[0]):
             reasons.append(events.refusal[1])
+        if recent(events.watchdog_braking_at):  # held: one heartbeat later it says OK again
+            reasons.append(_STATE_REASONS[BaseState.BRAKING_WATCHDOG])
         if events.repeat is not None and recent(events.repeat[0]):
             _, name, counter = events.repeat
             reasons.append(f"stale frame from the base: {name} repeated rolling counter {counter}")
@@ -779,19 +790,31 @@ def _bus_state_reasons(bus: can.BusABC) -> list[str]:
     return []
 
 
+HOLDS = (BaseState.BRAKING_BUMPER, BaseState.ESTOP)
+"""Base states that are not link faults: the base brakes by its own rules (a bumper's
+latch until the operator's reset, the hardware e-stop) and the run goes on once it is
+released; the bumper switches also reach the safety layer, which latches its own e-stop."""
+
+
 def _base_reasons(latest: BaseSnapshot) -> list[str]:
     reasons = []
-    if latest.estop:
-        reasons.append(_STATE_REASONS[BaseState.ESTOP])
-    if latest.latched:
-        reasons.append(_STATE_REASONS[BaseState.BRAKING_BUMPER])
     fault = latest.fault if latest.fault not in (None, BaseFault.NONE) else None
     if fault is not None:
         reasons.append(f"base fault: {fault.name}")
     if latest.base_state is BaseState.FAULT:
         reasons.append(f"base fault: {fault.name if fault else 'unspecified'}")
-    elif latest.base_state not in (None, BaseState.OK):
+    elif latest.base_state not in (None, BaseState.OK, *HOLDS):
         reasons.append(_STATE_REASONS[latest.base_state])
+    return reasons
+
+
+def base_holds(latest: BaseSnapshot) -> list[str]:
+    """Why the base brakes by its own rules now without the link being at fault."""
+    reasons = []
+    if latest.estop:
+        reasons.append(_STATE_REASONS[BaseState.ESTOP])
+    if latest.latched:
+        reasons.append(_STATE_REASONS[BaseState.BRAKING_BUMPER])
     return reasons
 
 
@@ -818,6 +841,7 @@ class _FirmwareState:
     fault: BaseFault = BaseFault.NONE
     expired: bool = True
     watchdog_fired_at: float | None = None
+    watchdog_fired_after: float | None = None
     refused_resets: int = 0
 
 
@@ -910,6 +934,7 @@ class SimulatedBaseFirmware:
         expired = at is None or now - at > self.watchdog
         if expired and not state.expired and at is not None:
             state.watchdog_fired_at = now
+            state.watchdog_fired_after = now - at
         state.expired = expired
 
     # -- what the base does
@@ -960,6 +985,12 @@ class SimulatedBaseFirmware:
         """When (base clock) the firmware last noticed its watchdog expire."""
         with self._lock:
             return self._state.watchdog_fired_at
+
+    @property
+    def watchdog_fired_after(self) -> float | None:
+        """How long after the last valid heartbeat the watchdog last fired (s)."""
+        with self._lock:
+            return self._state.watchdog_fired_after
 
     @property
     def heartbeat_at(self) -> float | None:

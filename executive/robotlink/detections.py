@@ -58,12 +58,13 @@ from collections import Counter
 from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from enum import StrEnum
-from types import MappingProxyType, TracebackType
+from types import MappingProxyType
 
 import zmq
 
 from executive.core.records import CameraFrame, Detection
 from executive.robotlink.nmea import ArrivalStats, IntervalMeter
+from executive.robotlink.wire import Wire
 
 Clock = Callable[[], float]
 
@@ -238,7 +239,7 @@ def _detection(item: object) -> Detection:
 
 
 # -- subscriber --------------------------------------------------------------------------------
-class DetectionSubscriber:
+class DetectionSubscriber(Wire):
     """Receives detection messages in a background thread; keeps the latest per camera.
 
     The thread polls with a 50 ms timeout so :meth:`close` returns promptly, drains what
@@ -330,17 +331,6 @@ class DetectionSubscriber:
         if not self._thread.is_alive():
             self._context.term()
 
-    def __enter__(self) -> DetectionSubscriber:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
-
     # the thread -------------------------------------------------------------------------------
     def _run(self) -> None:
         poller = zmq.Poller()
@@ -376,7 +366,7 @@ class DetectionSubscriber:
 
 
 # -- publisher ---------------------------------------------------------------------------------
-class DetectionPublisher:
+class DetectionPublisher(Wire):
     """Publishes detection messages: the simulator's camera end, and a reference for a
     vision process written in Python. Binds ``endpoint`` (``tcp://127.0.0.1:*`` picks a
     free port; :attr:`endpoint` is then the one bound). Thread-safe."""
@@ -406,14 +396,3 @@ class DetectionPublisher:
         with self._lock:
             self._socket.close(linger=0)
         self._context.term()
-
-    def __enter__(self) -> DetectionPublisher:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()

@@ -77,7 +77,6 @@ class RobotLink:
         gps: NmeaClient | None,
         detections: DetectionSubscriber | None,
         clock: Clock,
-        recorder: _CanRecorder | None = None,
     ) -> None:
         self.bus = bus
         self.base = base
@@ -85,7 +84,6 @@ class RobotLink:
         self.gps = gps
         self.detections = detections
         self.clock = clock
-        self._recorder = recorder
         self._reset_requested = False
         self._closed = False
         self._read_at = math.nan
@@ -95,6 +93,7 @@ class RobotLink:
         self.scan_to_command: deque[float] = deque(maxlen=TIMING_WINDOW)
         """Seconds from the arrival of the newest laser scan a tick used to its command."""
         self._nmea_errors: deque[tuple[float, int]] = deque()
+        self._faults: tuple[str, ...] = ()
 
     @classmethod
     def open(
@@ -105,56 +104,78 @@ class RobotLink:
         clock: Clock | None = None,
         can_log: Path | None = None,
     ) -> RobotLink:
-        """Open every wire of ``config`` for a robot with ``platform``'s sensors."""
+        """Open every wire of ``config`` for a robot with ``platform``'s sensors; whatever
+        was opened is closed again when a later wire cannot be (:class:`LinkError`)."""
         t0 = time.monotonic()
         clock = clock or (lambda: time.monotonic() - t0)
-        try:
-            bus = can.Bus(**config.can.bus_kwargs())
-        except (can.CanError, OSError, ValueError, ImportError) as exc:
-            raise LinkError(f"CAN {config.can.interface}:{config.can.channel}: {exc}") from exc
-        base = CanBaseLink(
-            bus,
-            BaseLinkConfig.from_indices(
-                config.ptus, watchdog=config.can.watchdog, base_timeout=config.can.base_timeout
-            ),
-            clock=clock,
-        )
-        recorder = None
-        if can_log is not None:
-            recorder = _CanRecorder(config.can.bus_kwargs(), can_log)
-        lasers = {
-            laser.id: ScipClient(laser.host, laser.port, clock=clock, name=laser.id)
-            for laser in config.lasers
-        }
-        gps = None
-        if config.gps is not None:
-            geo = GeoReference(
-                config.gps.latitude_deg, config.gps.longitude_deg, config.gps.x_axis_bearing_deg
-            )
-            gps = NmeaClient(config.gps.url, geo, clock, baudrate=config.gps.baud)
-        detections = None
-        if config.detections is not None:
-            cameras = [cam for unit in platform.cameras for cam in camera_ids(platform, unit)]
-            detections = DetectionSubscriber(config.detections, cameras, clock)
-        return cls(bus, base, lasers, gps, detections, clock, recorder)
+        with contextlib.ExitStack() as opened:
+            try:
+                bus = can.Bus(**config.can.bus_kwargs())
+                opened.callback(bus.shutdown)
+                base = CanBaseLink(
+                    bus,
+                    BaseLinkConfig.from_indices(
+                        config.ptus,
+                        watchdog=config.can.watchdog,
+                        base_timeout=config.can.base_timeout,
+                    ),
+                    clock=clock,
+                )
+                opened.callback(base.close)
+                logger = None
+                if can_log is not None:  # both directions, on the link's own bus
+                    logger = can.Logger(str(can_log))
+                    opened.callback(logger.stop)
+                    base.add_listener(logger)
+            except (can.CanError, OSError, ValueError, ImportError) as exc:
+                raise LinkError(f"CAN {config.can.interface}:{config.can.channel}: {exc}") from exc
+            lasers = {}
+            for laser in config.lasers:
+                lasers[laser.id] = ScipClient(laser.host, laser.port, clock=clock, name=laser.id)
+                opened.callback(lasers[laser.id].close)
+            gps = None
+            if config.gps is not None:
+                geo = GeoReference(
+                    config.gps.latitude_deg, config.gps.longitude_deg, config.gps.x_axis_bearing_deg
+                )
+                gps = NmeaClient(config.gps.url, geo, clock, baudrate=config.gps.baud)
+                opened.callback(gps.close)
+            detections = None
+            if config.detections is not None:
+                cameras = [cam for unit in platform.cameras for cam in camera_ids(platform, unit)]
+                try:
+                    detections = DetectionSubscriber(config.detections, cameras, clock)
+                except Exception as exc:  # zmq.ZMQError, a malformed endpoint
+                    raise LinkError(f"detections {config.detections}: {exc}") from exc
+            opened.pop_all()  # everything is open: the link owns it now
+        return cls(bus, base, lasers, gps, detections, clock)
 
-    def wait_ready(self, timeout: float = 10.0, period: float = 0.02) -> None:
-        """Bring the base up: send stop commands with our heartbeat (state IDLE) until the
-        base answers with its own heartbeat and no reason to distrust the link remains
-        (a base braking on its watchdog releases once it sees our heartbeat). Raises
-        :class:`LinkError` naming what is still wrong after ``timeout`` seconds."""
+    def wait_ready(
+        self,
+        timeout: float = 10.0,
+        period: float = 0.02,
+        should_stop: Callable[[], bool] = lambda: False,
+    ) -> bool:
+        """Bring the base up: send stop commands with our heartbeat (state IDLE, ENABLE 0)
+        until the base answers with its own heartbeat and no reason to distrust the link
+        remains (a base braking on its watchdog releases once it sees our heartbeat; a
+        pending operator's reset goes out too). False when ``should_stop`` (a signal)
+        ended the wait; raises :class:`LinkError` naming what is still wrong after
+        ``timeout`` seconds."""
         deadline = time.monotonic() + timeout
-        while True:
+        while not should_stop():
+            self._send_pending_reset()
             self.base.send(VelocityCommand.stop(), ExecState.IDLE)
             faults = self.link_faults()
             if not faults and self.base.snapshot().heartbeat_at is not None:
-                return
+                return True
             if time.monotonic() >= deadline:
                 raise LinkError(
                     f"the base is not ready after {timeout:g} s: "
                     + ("; ".join(faults) or "no base heartbeat")
                 )
             time.sleep(period)
+        return False
 
     # -- RobotInterface ---------------------------------------------------------------------------
     def read(self) -> SensorFrame:
@@ -175,10 +196,11 @@ class RobotLink:
         return snapshot.fill(frame)
 
     def send(self, command: VelocityCommand) -> None:
-        if self._reset_requested:
-            self._reset_requested = False
-            self.base.send_reset()
-        self.base.send(command, ExecState.RUNNING)
+        """One control cycle on the bus; raises :class:`LinkError` when its frames did not
+        all go out (the runtime then reports the stop as not confirmed)."""
+        self._send_pending_reset()
+        if not self.base.send(command, ExecState.RUNNING):
+            raise LinkError("the control cycle's frames did not all go out on the CAN bus")
         sent = self.clock()
         if math.isfinite(self._read_at):
             self.command_latency.append(sent - self._read_at)
@@ -187,7 +209,8 @@ class RobotLink:
 
     # -- health -----------------------------------------------------------------------------------
     def link_faults(self) -> tuple[str, ...]:
-        return (*self.base.health(), *self._nmea_faults())
+        self._faults = (*self.base.health(), *self._nmea_faults())
+        return self._faults
 
     def _nmea_faults(self) -> tuple[str, ...]:
         """A GPS stream that keeps failing its checksums (a wiring or baud-rate fault, not
@@ -207,6 +230,11 @@ class RobotLink:
             return (f"GPS: {recent} bad NMEA checksums within {NMEA_BAD_WINDOW:g} s",)
         return ()
 
+    def _send_pending_reset(self) -> None:
+        if self._reset_requested:
+            self._reset_requested = False
+            self.base.send_reset()
+
     def request_reset(self) -> None:
         """Send the base a BASE_RESET with the next command (the operator's reset of a
         latched bumper; the base refuses it while a bumper is still pressed)."""
@@ -218,7 +246,8 @@ class RobotLink:
         return {
             "base_state": snapshot.base_state.name.lower() if snapshot.base_state else None,
             "battery_percent": snapshot.battery_percent,
-            "link_faults": list(self.link_faults()),
+            "link_faults": list(self._faults),  # as the last tick judged them (read-only)
+            "base_holds": self.base.holds(),
             "lasers": {lid: client.health() for lid, client in self.lasers.items()},
             "gps": self.gps.status() if self.gps is not None else [],
         }
@@ -255,34 +284,19 @@ class RobotLink:
         return out
 
     def close(self) -> None:
-        """Close every wire (idempotent). Our heartbeat stops: the base's watchdog brakes."""
+        """Close every wire (idempotent), the base last but for its bus: a final stop with
+        ENABLE 0 goes out, then our heartbeat stops and the base's watchdog holds it."""
         if self._closed:
             return
         self._closed = True
-        with contextlib.suppress(Exception):  # the link may be what failed: the watchdog brakes
-            self.base.send(VelocityCommand.stop(), ExecState.STOPPING)
-        for client in (*self.lasers.values(), self.gps, self.detections):
-            if client is not None:
-                client.close()
-        self.base.close()
-        if self._recorder is not None:
-            self._recorder.close()
-        self.bus.shutdown()
-
-
-class _CanRecorder:
-    """The run's CAN log: a second bus on the same channel sees the frames of both ends
-    (the link's own bus belongs to its receive thread), written by python-can's Logger
-    (.blf, .asc, ... by the file's suffix) for cantools and the python-can tools."""
-
-    def __init__(self, bus_kwargs: dict[str, object], path: Path) -> None:
-        self.bus = can.Bus(**bus_kwargs)
-        self.logger = can.Logger(str(path))
-        self.notifier = can.Notifier(self.bus, [self.logger], timeout=0.05)
-
-    def close(self) -> None:
-        self.notifier.stop(timeout=1.0)  # stops (and closes) the logger too
-        self.bus.shutdown()
+        with contextlib.ExitStack() as closing:  # each closed even if another one raises
+            closing.callback(self.bus.shutdown)
+            closing.callback(self.base.close)  # stops the notifier and the CAN log with it
+            for client in (*self.lasers.values(), self.gps, self.detections):
+                if client is not None:
+                    closing.callback(client.close)
+            with contextlib.suppress(Exception):  # the link may be what failed
+                self.base.send(VelocityCommand.stop(), ExecState.IDLE)
 
 
 def _plain(value: object) -> object:

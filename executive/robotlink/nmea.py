@@ -66,12 +66,13 @@ import time
 from collections import Counter, deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from types import MappingProxyType, TracebackType
+from types import MappingProxyType
 
 import pynmea2
 import serial
 
 from executive.core.records import GpsFix
+from executive.robotlink.wire import Wire
 
 Clock = Callable[[], float]
 
@@ -536,7 +537,7 @@ class NmeaDecoder:
 
 
 # -- the wire: client -------------------------------------------------------------------------
-class NmeaClient:
+class NmeaClient(Wire):
     """Reads an NMEA stream from any pyserial URL in a background thread.
 
     One code path for a receiver on a serial port (``/dev/ttyUSB0``) and for the simulator
@@ -590,17 +591,6 @@ class NmeaClient:
         """Stop reading and close the wire (returns within about 0.1 s once connected)."""
         self._stop.set()
         self._thread.join(_JOIN_TIMEOUT)
-
-    def __enter__(self) -> NmeaClient:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
     def _run(self) -> None:
         backoff = _BACKOFF_MIN
@@ -695,7 +685,7 @@ def nmea_sentences(
     return [str(pynmea2.GST(talker, "GST", gst)), str(pynmea2.GGA(talker, "GGA", gga))]
 
 
-class NmeaServer:
+class NmeaServer(Wire):
     """A loopback TCP server that plays a GNSS receiver for the hardware-in-the-loop
     simulator: every :meth:`publish` goes to every connected client.
 
@@ -754,17 +744,6 @@ class NmeaServer:
         self._thread.join(_JOIN_TIMEOUT)
         self._listener.close()
         self.disconnect_clients()
-
-    def __enter__(self) -> NmeaServer:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
     def _drop(self, client: socket.socket) -> None:
         with self._lock:

@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from executive.core.records import LaserScan
+from executive.robotlink.wire import Wire
 
 LF = b"\n"
 BLOCK = 64
@@ -512,7 +513,7 @@ class _LinkDownError(Exception):
         self.cause = cause
 
 
-class ScipClient:
+class ScipClient(Wire):
     """One laser scanner over SCIP 2.0/TCP, read by a background thread.
 
     The thread connects, sends QT (stop whatever a previous session left running), VV,
@@ -591,12 +592,6 @@ class ScipClient:
         if sock is not None:
             _shutdown(sock)
         self._thread.join(timeout=5.0)
-
-    def __enter__(self) -> ScipClient:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     # -- the thread -------------------------------------------------------------------------------
     def _run(self) -> None:
@@ -777,7 +772,7 @@ class _Peer:
     open: bool = True
 
 
-class ScipServer:
+class ScipServer(Wire):
     """A UTM-30LX-EW on 127.0.0.1 for the hardware-in-the-loop simulator.
 
     It answers VV, PP, II, BM, QT, RS, GD/GS and MD/MS as the specification says, and
@@ -840,12 +835,6 @@ class ScipServer:
         for thread in self._threads:
             if thread is not threading.current_thread():
                 thread.join(timeout=2.0)
-
-    def __enter__(self) -> ScipServer:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     # -- threads ----------------------------------------------------------------------------------
     def _spawn(self, target: Callable[..., None], name: str, *args: object) -> None:
