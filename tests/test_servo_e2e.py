@@ -91,11 +91,11 @@ def test_lab_with_a_person_occluding_and_a_frozen_camera(disturbed_run):
     assert servo["CP2"]["reconstructed_s"] > 0.0
     reasons = [e.detail["reason"] for e in _controller_events(run)]
     assert any("reconstructed" in r and "target-2" in r for r in reasons)
-    # the frozen front-left camera (16-20 s) handed the servo to front-right
+    # the frozen front-right camera (16-20 s), which drove, handed the servo to front-left
     switches = servo["CP1"]["switches"]
     assert any(
         16.0 <= sw["t"] <= 20.5
         and "ibvs -> ibvs" in sw["reason"]
-        and "on front-right" in sw["reason"]
+        and "on front-left" in sw["reason"]
         for sw in switches
     ), switches

@@ -29,7 +29,7 @@ from behaviours.laws.interaction import (
     point_interaction_matrix_eq_3_17,
     project_points,
 )
-from behaviours.laws.pose_estimation import camera_pose_from_points, is_planar
+from behaviours.laws.pose_estimation import camera_pose_from_points, is_planar, is_well_posed
 from behaviours.laws.robot_jacobian import (
     AIR_COBOT_CAMERA_HEIGHT,
     PanTiltCamera,
@@ -40,6 +40,7 @@ from behaviours.laws.servo import (
     AdaptiveGain,
     InteractionAt,
     VisualServo,
+    approach_line_row,
     control_law_eq_3_10,
     pseudo_inverse,
     stop_algorithm_3_1,
@@ -661,3 +662,49 @@ def test_table_3_2_heading_is_the_known_gap():
     ours = _thesis_run("thesis-table-3-2-pbvs.json")
     heading = ours["final_robot_error"]["heading_rad"]
     assert published["final_robot_error"]["heading_rad"] < heading < 0.05
+
+
+def test_a_pose_needs_four_points_off_one_line():
+    """A320 CP09 (issue 13): PBVS asked solvePnP for the pose of three marks along a
+    wing's leading edge; it raised, and the servo held the robot still."""
+    square = [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]
+    assert is_well_posed(square)
+    assert not is_well_posed(square[:3])  # three points: up to four P3P poses
+    line = [[15.91, -8.0, 3.5], [17.98, -12.0, 3.85], [19.79, -15.5, 4.15], [18.9, -13.7, 4.0]]
+    assert not is_well_posed(line)  # the A320's leading edge, plus a fourth mark on it
+    with pytest.raises(ValueError):
+        camera_pose_from_points(square[:3], [[0, 0], [0.1, 0], [0.1, 0.1]])
+
+
+@given(
+    st.floats(-0.3, 0.3), st.floats(0.1, 2.0), st.floats(-0.3, 0.3), st.floats(-math.pi, math.pi)
+)
+@settings(max_examples=50, deadline=None)
+def test_approach_line_row_matches_finite_differences(cross, behind, dtheta, heading):
+    goal = (1.0, -2.0, heading)
+    ch, sh = math.cos(heading), math.sin(heading)
+    x = goal[0] - behind * ch - cross * sh
+    y = goal[1] - behind * sh + cross * ch
+    theta = heading + dtheta
+    e, ahead, row = approach_line_row(x, y, theta, *goal)
+    assert ahead == pytest.approx(behind) and row[0] == 0.0 and row[2] == row[3] == 0.0
+    assert e == pytest.approx(cross + behind * math.sin(dtheta))
+    h = 1e-6  # turning in place: de = d cos(dtheta) omega dt
+    e2, _, _ = approach_line_row(x, y, theta + h, *goal)
+    assert (e2 - e) / h == pytest.approx(row[1], rel=1e-4, abs=1e-7)
+    on_line = approach_line_row(goal[0] - behind * ch, goal[1] - behind * sh, heading, *goal)
+    assert on_line[0] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_approach_line_row_steers_a_unicycle_onto_the_heading_line():
+    """The offset across the line, which no command reaches at the goal (four controls,
+    five configuration variables), shrinks with the distance driven under the row."""
+    x, y, theta = -1.0, 0.02, 0.0  # 1 m behind a goal at the origin facing +x, 2 cm left
+    dt, v = 0.02, 0.15
+    while True:
+        e, ahead, row = approach_line_row(x, y, theta, 0.0, 0.0, 0.0)
+        if ahead <= 0.25:
+            break
+        omega = -2.0 * e / row[1]  # the least-squares law on this row alone, gain 2
+        x, y, theta = x + v * math.cos(theta) * dt, y + v * math.sin(theta) * dt, theta + omega * dt
+    assert abs(y) < 0.3 * 0.02  # in proportion to the distance left (0.25 of 1 m)

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 
 import py_trees
 
@@ -11,7 +11,7 @@ from behaviours.base import Controller
 from behaviours.goals import Goal
 from behaviours.keys import COMMAND, FEATURES, POSE, SENSOR_FRAME
 from behaviours.laws.go_to_goal import GoToGoal, GoToGoalParams
-from executive.core.frames import Pose2, aircraft_from_robot, pan_tilt_towards, wrap_angle
+from executive.core.frames import Pose2, aircraft_from_robot, pan_tilt_towards
 from executive.core.model import CameraSpec, Feature
 from executive.core.records import (
     FeatureObservations,
@@ -109,9 +109,16 @@ class GoToGoalController(Controller):
             v = max(-cap, min(cap, v))
         self.last_v = v
         self.phase = out.phase
-        self.write(COMMAND, VelocityCommand(v, out.omega))
+        rates = self.pan_tilt_rates(pose)
+        command = VelocityCommand(v, out.omega, rates) if rates else VelocityCommand(v, out.omega)
+        self.write(COMMAND, command)
         self.feedback_message = f"{out.phase}: {out.distance:.2f} m"
         return Status.SUCCESS if out.reached else Status.RUNNING
+
+    def pan_tilt_rates(self, pose: PoseEstimate) -> Mapping[str, PanTiltRate]:
+        """The pan-tilt rates sent with the base's command: none (the units hold still);
+        :class:`behaviours.controllers.servo.AimedGoToGoal` aims them at a servo target."""
+        return {}
 
 
 class Dwell(Controller):
@@ -158,7 +165,7 @@ class CorrectCameraAngle(Controller):
     go-to-goal) measures nothing worth correcting.
     """
 
-    reads = (SENSOR_FRAME, FEATURES)
+    reads = (SENSOR_FRAME, FEATURES, POSE)
     writes = (COMMAND,)
 
     def __init__(
@@ -174,10 +181,26 @@ class CorrectCameraAngle(Controller):
         gain: float = 1.0,
         centred: float = 0.2,
         servoed: bool = True,
+        servo_unit: Callable[[], tuple[str, tuple[str, ...], float, float] | None] | None = None,
+        track: Callable[
+            [FeatureObservations | None, SensorFrame, PoseEstimate], Mapping[str, PanTiltRate]
+        ]
+        | None = None,
         name: str = "correct camera angle",
     ) -> None:
         super().__init__(name)
+        self.track = track
+        """When given (:meth:`behaviours.controllers.servo.ServoSession.track_rates`): the
+        unit keeps the target at its desired pixels by vision while the base turns (on top
+        of the counter-pan), so its pan keeps measuring the target's bearing even when the
+        base turns less than commanded (slip, the rate loop's lag): counter-panning alone
+        settled on pan* with the base 0.5 deg short."""
         self.servoed = servoed
+        self.servo_unit = servo_unit
+        """When given: the unit that drove the visual servo, its camera ids, ``pan*`` and half
+        image width
+        (:meth:`behaviours.controllers.servo.ServoSession.servoed_unit`); the correction
+        acts on that unit's measured pan, the one the servo brought to ``pan*``."""
         self.camera = camera
         self.camera_ids = camera_ids
         self.target = target
@@ -191,15 +214,23 @@ class CorrectCameraAngle(Controller):
         )
         self.desired_pan, _ = pan_tilt_towards(camera.mount, camera.mount_yaw, target_r)
         self._active = False
+        self._unit = (camera.id, camera_ids, self.desired_pan, camera.image_width_px / 2.0)
 
     def initialise(self) -> None:
         self._active = False
+        servoed = self.servo_unit() if self.servo_unit is not None else None
+        self._unit = servoed or (
+            self.camera.id,
+            self.camera_ids,
+            self.desired_pan,
+            self.camera.image_width_px / 2.0,
+        )
 
     def _aimed(self, features: FeatureObservations | None) -> bool:
         if features is None:
             return False
-        half = self.camera.image_width_px / 2.0
-        for cid in self.camera_ids:
+        half = self._unit[3]
+        for cid in self._unit[1]:
             us = [d.u for d in features.by_camera.get(cid, ()) if d.feature == self.target.id]
             if us and abs(sum(us) / len(us) - half) <= self.centred * half:
                 return True
@@ -207,15 +238,16 @@ class CorrectCameraAngle(Controller):
 
     def update(self) -> Status:
         frame: SensorFrame = self.read(SENSOR_FRAME)
-        angles = frame.pan_tilt.get(self.camera.id)
+        unit, _, desired_pan, _ = self._unit
+        angles = frame.pan_tilt.get(unit)
         if angles is None:
             self.write(COMMAND, VelocityCommand.stop())
             self.feedback_message = "no pan reading"
             return Status.SUCCESS
-        error = wrap_angle(angles.pan - self.desired_pan)
+        error = angles.pan - desired_pan  # within the unit's limits: never through +-180
         self.feedback_message = (
-            f"measured pan {math.degrees(angles.pan):.2f} deg, pan* "
-            f"{math.degrees(self.desired_pan):.2f} deg (threshold "
+            f"{unit}: measured pan {math.degrees(angles.pan):.2f} deg, pan* "
+            f"{math.degrees(desired_pan):.2f} deg (threshold "
             f"{math.degrees(self.threshold):.2f} deg)"
         )
         if not self._active:
@@ -235,5 +267,11 @@ class CorrectCameraAngle(Controller):
         # Pan is measured about +z_R (left positive): turning the base left by the same
         # angle brings the target towards pan*; the unit pans back at the same rate.
         omega = max(-self.max_omega, min(self.max_omega, self.gain * error))
-        self.write(COMMAND, VelocityCommand(0.0, omega, {self.camera.id: PanTiltRate(-omega, 0.0)}))
+        rate = PanTiltRate(-omega, 0.0)
+        pose: PoseEstimate | None = self.read(POSE)
+        if self.track is not None and pose is not None:
+            tracked = self.track(self.read(FEATURES), frame, pose).get(unit)
+            if tracked is not None:
+                rate = PanTiltRate(-omega + tracked.pan, tracked.tilt)
+        self.write(COMMAND, VelocityCommand(0.0, omega, {unit: rate}))
         return Status.RUNNING

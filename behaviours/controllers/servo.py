@@ -14,18 +14,27 @@ the controllers of one navigation share a :class:`ServoSession`:
   projected from the target's model in F through the current pose estimate and the
   measured pan-tilt angles; and the camera's reliability
   (:func:`behaviours.laws.augmented_image.reliability`);
-* the most reliable camera drives the base (kept unless it falls under 70 % of the best:
-  no flicker); every other unit keeps its pan-tilt unit on the target with the
-  track-feature law (lines 745-764) on its own augmented image, so it can take over
-  without a search when the driver's camera fails or is occluded;
+* the most reliable camera drives the base (kept unless it falls under
+  :data:`KEEP_DRIVER` of the best, then the best camera of the same unit; another unit
+  only when the driving unit has lost the target: no flicker); every other unit keeps its
+  pan-tilt unit on the target with the track-feature law (lines 745-764) on its own
+  augmented image, so it can take over without a search when the driver's camera fails
+  or is occluded. A point missed in fewer than :data:`DROPOUT_IMAGES` images is a
+  dropout, not a loss;
 * the mode, as the thesis switches (lines 3228-3240): PBVS while the target is not yet
   fully and robustly visible in the real image of the driving camera (its pose from
   solvePnP on the augmented image), IBVS once every point has been detected in
   :data:`ROBUST_TICKS` consecutive ticks; IBVS then continues on the augmented image
   while at least two real points remain. A checkpoint whose method is ``ibvs`` never uses
-  PBVS: metric go-to-goal until the target is fully visible. ``lost`` (fewer than two
-  real points in every camera): the guards fail and metric go-to-goal drives; when the
-  features come back, servoing starts again;
+  PBVS: metric go-to-goal until the target is fully visible. PBVS needs a pose: with the
+  driving camera's points in view fewer than 4 or on one line
+  (:func:`behaviours.laws.pose_estimation.is_well_posed`), or when solvePnP fails, the
+  servo runs IBVS on the augmented image instead (the switch says why);
+* a servo whose error has not fallen by :data:`PROGRESS_SHARE` for :data:`NO_PROGRESS_S`
+  gives the checkpoint to metric go-to-goal for good (``gave_up``, in the guards'
+  feedback), rather than holding the robot until the mission's trap guard ends it;
+* ``lost`` (fewer than two real points in every camera): the guards fail and metric
+  go-to-goal drives; when the features come back, servoing starts again;
 * every change of mode or of driving camera is a task switch of the law
   (``VisualServo.switch`` with the command the robot had: continuous sequencing, no jerk)
   and shows in the guards' feedback, which the runtime logs as the controller switch's
@@ -33,31 +42,43 @@ the controllers of one navigation share a :class:`ServoSession`:
 
 The desired features come from the checkpoint's pose (the mission engineer writes a
 pose, not pixels): each camera's desired pose is the one it has with the base at the
-checkpoint and its unit aimed at the target's centroid (``pan*``, ``tilt*``); ``s*`` and
-``c*Mo`` are the target's points projected from there.
+checkpoint and its unit aimed at the target's centroid (``pan*``, ``tilt*``), or at the
+target point that keeps the most points in its images (:func:`desired_aim`); ``s*`` and
+``c*Mo`` are the target's points in view from there projected, and each camera servoes
+on those only. Metric go-to-goal towards the servo start and as the fallback keeps the
+units on the target (:class:`AimedGoToGoal`); a target of which no camera sees two points
+from the checkpoint (one point: a bearing, not a pose) is reached by metric go-to-goal,
+then :class:`TrackFeature` and correct camera angle on the tracking unit's pan.
 
 The checkpoint is reached when Algorithm 3.1's stop criterion holds on the command
 (averaged over :data:`STOP_WINDOW` ticks: the thesis's threshold test on a noisy image).
 Four controls steer five configuration variables (base x, y, theta, pan, tilt): one
 camera pose leaves the base heading free along a family (turn the base about the pan
 axis, pan back). The compiler therefore starts servoing from a point behind the
-checkpoint on its heading line (metric), so the camera's straight approach keeps the
-heading, and :class:`behaviours.controllers.motion.CorrectCameraAngle` then turns the
-base in place until the *measured* pan equals ``pan*`` (the heading the judge checks).
+checkpoint on its heading line (metric); on the way in, a task row from the localisation
+steers the base back onto that line (:func:`behaviours.laws.servo.approach_line_row`:
+the lateral offset is what no command reaches at the goal and what the image hardly
+tells from a rotation), and :class:`behaviours.controllers.motion.CorrectCameraAngle`
+then turns the base in place until the *measured* pan of the driving unit equals
+``pan*`` (the heading the judge checks).
 """
 
 from __future__ import annotations
 
+import math
 from collections import deque
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
 import py_trees
 
 from behaviours.base import Controller, Guard
+from behaviours.controllers.motion import GoToGoalController
+from behaviours.goals import Goal
 from behaviours.keys import COMMAND, FEATURES, POSE, SENSOR_FRAME, SERVO, ServoStatus
 from behaviours.laws.augmented_image import MIN_REAL_POINTS, AugmentedImage, augment, reliability
+from behaviours.laws.go_to_goal import GoToGoalParams
 from behaviours.laws.interaction import (
     ibvs_error_eq_3_3,
     pbvs_error_eq_3_25,
@@ -65,15 +86,19 @@ from behaviours.laws.interaction import (
     point_interaction_matrix_eq_3_17,
     project_points,
 )
-from behaviours.laws.pose_estimation import camera_pose_from_points
+from behaviours.laws.pose_estimation import camera_pose_from_points, is_well_posed
 from behaviours.laws.robot_jacobian import PanTiltCamera, robot_jacobian_eq_3_2
-from behaviours.laws.servo import AdaptiveGain, VisualServo, stop_algorithm_3_1
+from behaviours.laws.servo import (
+    AdaptiveGain,
+    VisualServo,
+    approach_line_row,
+    stop_algorithm_3_1,
+)
 from executive.core.frames import (
     Pose2,
     Transform3,
     aircraft_from_robot,
     pan_tilt_towards,
-    wrap_angle,
 )
 from executive.core.model import CameraKind, CameraSpec, Feature, Platform
 from executive.core.records import (
@@ -107,6 +132,17 @@ STOP_THRESHOLDS = (0.003, 0.003, 0.004, 0.004)
 """Algorithm 3.1's thresholds on |v| (m/s), |omega|, |omega_pan|, |omega_tilt| (rad/s)."""
 FILTER = 0.5
 """Exponential smoothing of the augmented image at each new image (0: frozen, 1: none)."""
+DROPOUT_IMAGES = 3
+"""Consecutive images of a camera with fewer than :data:`MIN_REAL_POINTS` real points of
+the target before the camera counts as having lost it. A detector dropout in one image
+(sim2d: 2 % per point) is not a loss: the camera keeps its (decaying) reliability, and a
+point real in the previous image holds its filtered position, so one missed detection
+neither hands the base to another camera nor ends the servo."""
+NO_PROGRESS_S = 20.0
+"""A servo whose error norm has not fallen by :data:`PROGRESS_SHARE` of its best value for
+this long hands the checkpoint over to metric go-to-goal (with an event saying so) instead
+of holding the robot until the mission's trap guard ends it."""
+PROGRESS_SHARE = 0.05
 
 
 @dataclass(frozen=True)
@@ -121,11 +157,35 @@ class ServoParams:
     max_omega: float = 0.5
     pan_weight: float = 1.0
     """Weight of the secondary task row ``pan - pan*`` against the visual error."""
+    line_weight: float = 3.0
+    """Weight (1/m) of the approach-line row
+    (:func:`behaviours.laws.servo.approach_line_row`) against the visual error. Against
+    the pan row (the camera's yaw held by the image, turning the base costs pan error) the
+    least-squares law turns the base by ``w^2 d^2 / (w^2 d^2 + 1)`` of the pure-pursuit
+    angle ``-c / d``: 0.9 of it 1 m out (the servo start), half at 1 / w."""
+    line_from: float = 1.0
+    line_until: float = 0.25
+    """The approach-line row's weight fades linearly from ``line_weight`` with the base
+    ``line_from`` (m) or more behind the checkpoint along its heading line (the servo
+    start) to 0 at ``line_until``; closer, the visual rows finish alone. A fixed weight
+    holds a residual against them: with a target that fixes the distance weakly (two
+    points) the robot stopped 37 cm short of the checkpoint, heading at it."""
+
+
+IMAGE_MARGIN_PX = 20.0
+"""A target point counts as in view at the checkpoint when its desired pixel is at least
+this far inside the image (the reliability's margin, :mod:`behaviours.laws.augmented_image`)."""
 
 
 @dataclass(frozen=True, slots=True, eq=False)
 class ServoCamera:
-    """One camera of a servo unit and its desired view of the target."""
+    """One camera of a servo unit and its desired view of the target.
+
+    ``points`` are the indices of the target's points that this camera sees from the
+    checkpoint (in front of it and inside its image): the camera servoes on those only. A
+    long target seen from close (a wing's leading edge from 2 m) does not fit in one
+    image; a point outside the desired image can never be real there, so servoing on it
+    would end on the pose estimate's reconstruction (or never see the target "fully")."""
 
     id: str
     unit: CameraSpec
@@ -138,7 +198,15 @@ class ServoCamera:
     s_desired: np.ndarray
     z_desired: np.ndarray
     reachable: bool
-    """``pan*``/``tilt*`` within the unit's limits: it can drive to the checkpoint."""
+    """``pan*``/``tilt*`` within the unit's limits and at least :data:`MIN_REAL_POINTS`
+    points in view at the checkpoint: it can drive to the checkpoint."""
+    points: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
+    pose_from_points: bool = False
+    """The points in view determine the target's pose (PBVS possible with this camera)."""
+    aim_f: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    """The point (F) the unit aims at with ``pan*``, ``tilt*`` (:func:`desired_aim`)."""
+    within_limits: bool = False
+    """``pan*`` and ``tilt*`` are within the unit's limits."""
 
 
 @dataclass(slots=True)
@@ -150,43 +218,97 @@ class _View:
     reliability: float
 
 
+def _in_view(
+    xy: np.ndarray, z: np.ndarray, focal_px: float, half: tuple[float, float]
+) -> np.ndarray:
+    px = np.abs(xy) * focal_px
+    return (
+        (z > 0.0) & (px[:, 0] < half[0] - IMAGE_MARGIN_PX) & (px[:, 1] < half[1] - IMAGE_MARGIN_PX)
+    )
+
+
+def desired_aim(
+    spec: CameraSpec,
+    chains: list[PanTiltCamera],
+    points_f: np.ndarray,
+    checkpoint_f: Pose2,
+    origin_height: float,
+) -> tuple[float, float, np.ndarray]:
+    """``pan*``, ``tilt*`` of a unit at the checkpoint and the point of the target (in F)
+    they aim at: the target's centroid, or,
+    when that leaves some of its points out of an image, at the point (or midpoint of two
+    points) that keeps the most points in view in every camera of the unit (ties: the
+    candidate listed first, the centroid first, so a target that fits keeps its aim)."""
+    robot_from_f = aircraft_from_robot(checkpoint_f, origin_height).inverse()
+    n = len(points_f)
+    candidates = [points_f.mean(axis=0), *points_f]
+    candidates += [(points_f[i] + points_f[j]) / 2 for i in range(n) for j in range(i + 1, n)]
+    best: tuple[tuple[int, int], tuple[float, float, np.ndarray]] | None = None
+    for aim in candidates:
+        pan, tilt = pan_tilt_towards(spec.mount, spec.mount_yaw, robot_from_f.apply(aim))
+        reachable = (
+            spec.pan_limits[0] <= pan <= spec.pan_limits[1]
+            and spec.tilt_limits[0] <= tilt <= spec.tilt_limits[1]
+        )
+        seen = []
+        for chain in chains:
+            cd_m_f = chain.aircraft_from_camera(checkpoint_f, pan, tilt, origin_height).inverse()
+            xy, z = project_points(cd_m_f, points_f)
+            seen.append(int(np.count_nonzero(_in_view(xy, z, spec.focal_px, _half(spec)))))
+        score = (int(reachable), min(seen))
+        if best is None or score > best[0]:
+            best = (score, (pan, tilt, aim))
+        if score == (1, n):
+            break
+    assert best is not None
+    return best[1]
+
+
+def _half(spec: CameraSpec) -> tuple[float, float]:
+    return (spec.image_width_px / 2.0, spec.image_height_px / 2.0)
+
+
 def servo_cameras(
     platform: Platform, target: Feature, checkpoint_f: Pose2, origin_height: float
 ) -> list[ServoCamera]:
     """The cameras of the platform's stereo and mono units, each with its desired view of
     ``target`` from ``checkpoint_f`` (a pose in F)."""
     points_f = np.array([p.array() for p in target.points], dtype=float)
-    target_r = aircraft_from_robot(checkpoint_f, origin_height).inverse().apply(target.centroid())
     out: list[ServoCamera] = []
     for uid, spec in platform.cameras.items():
         if spec.kind is CameraKind.PTZ:
             continue
-        pan, tilt = pan_tilt_towards(spec.mount, spec.mount_yaw, target_r)
-        reachable = (
-            spec.pan_limits[0] <= pan <= spec.pan_limits[1]
-            and spec.tilt_limits[0] <= tilt <= spec.tilt_limits[1]
-        )
         if spec.kind is CameraKind.STEREO and spec.baseline:
             sides = ((f"{uid}-left", spec.baseline / 2), (f"{uid}-right", -spec.baseline / 2))
         else:
             sides = ((uid, 0.0),)
-        for cid, lateral in sides:
-            chain = PanTiltCamera.from_spec(spec, lateral=lateral)
+        chains = [PanTiltCamera.from_spec(spec, lateral=lateral) for _, lateral in sides]
+        pan, tilt, aim_f = desired_aim(spec, chains, points_f, checkpoint_f, origin_height)
+        reachable = (
+            spec.pan_limits[0] <= pan <= spec.pan_limits[1]
+            and spec.tilt_limits[0] <= tilt <= spec.tilt_limits[1]
+        )
+        for (cid, _), chain in zip(sides, chains, strict=True):
             cd_m_f = chain.aircraft_from_camera(checkpoint_f, pan, tilt, origin_height).inverse()
             s_d, z_d = project_points(cd_m_f, points_f)
+            seen = np.flatnonzero(_in_view(s_d, z_d, spec.focal_px, _half(spec)))
             out.append(
                 ServoCamera(
                     cid,
                     spec,
                     chain,
                     spec.focal_px,
-                    (spec.image_width_px / 2.0, spec.image_height_px / 2.0),
+                    _half(spec),
                     pan,
                     tilt,
                     cd_m_f,
-                    s_d,
-                    z_d,
-                    reachable and bool(np.all(z_d > 0.0)),
+                    s_d[seen],
+                    z_d[seen],
+                    reachable and seen.size >= MIN_REAL_POINTS,
+                    seen,
+                    is_well_posed(points_f[seen]),
+                    aim_f,
+                    reachable,
                 )
             )
     return out
@@ -206,6 +328,7 @@ class ServoSession:
         params: ServoParams | None = None,
     ) -> None:
         self.checkpoint = checkpoint
+        self.checkpoint_f = checkpoint_f
         self.target = target
         self.method = IBVS if method == IBVS else PBVS  # auto: the thesis's PBVS -> IBVS
         self.params = params or ServoParams()
@@ -229,11 +352,15 @@ class ServoSession:
         self._full = 0
         self._t0 = 0.0
         self._now = 0.0
-        self._filtered: dict[str, tuple[float, np.ndarray]] = {}
+        self._filtered: dict[str, tuple[float, np.ndarray, np.ndarray]] = {}
         self._reliability: dict[str, float] = {}
         self._pose: PoseEstimate | None = None
         self._angles: dict[str, PanTilt] = {}
         self.units = {c.unit.id: c.unit for c in self.cameras}
+        self.drivable = any(c.reachable for c in self.cameras)
+        """Some camera sees enough of the target from the checkpoint to servo the base
+        there (:data:`MIN_REAL_POINTS`; a one-point target never does)."""
+        self.aims = {c.unit.id: c.aim_f for c in self.cameras}
         self._pose_guess: Transform3 | None = None
         self._history: deque[np.ndarray] = deque(maxlen=STOP_WINDOW)
         self._iterations = 0
@@ -241,6 +368,22 @@ class ServoSession:
         self.switches: list[tuple[float, str]] = []
         self.lost_since: float | None = None
         """When the features were lost while servoing (None: not lost, or never servoed)."""
+        self.last_driver: ServoCamera | None = None
+        """The camera that drove last (its unit's pan was servoed to ``pan*``)."""
+        self.track_error_px: float | None = None
+        """How far (px) the tracked camera's detections are from their desired pixels."""
+        self.tracked: ServoCamera | None = None
+        """The camera that last held the target at ``s*`` by track-feature under metric
+        go-to-goal (:meth:`track_rates`)."""
+        self.gave_up: str | None = None
+        """Why servoing handed this checkpoint over to metric go-to-goal for good (no
+        progress for :data:`NO_PROGRESS_S`), or None."""
+        self._no_pose: str | None = None
+        self._missed: dict[str, int] = {}
+        self._image_stamp: dict[str, float | None] = {}
+        self._best_error = math.inf
+        self._best_t = 0.0
+        self._outranked = 0
 
     # -- perception: the augmented image of every camera ------------------------------------
     def update(
@@ -257,14 +400,16 @@ class ServoSession:
         self._pose = pose
         self._angles = dict(frame.pan_tilt)
         previous_mode, previous_driver = self.mode, self.driver
-        driver = self._choose_driver()
+        driver = self._choose_driver() if self.gave_up is None else None
         mode = LOST
         if driver is not None:
             view = self.views[driver.id]
             self._full = self._full + 1 if view.image.n_reconstructed == 0 else 0
             if (
-                previous_mode == IBVS and previous_driver is not None
-            ) or self._full >= ROBUST_TICKS:
+                (previous_mode == IBVS and previous_driver is not None)
+                or self._full >= ROBUST_TICKS
+                or (self.method == PBVS and self._pbvs_blocked(driver) is not None)
+            ):
                 mode = IBVS
             elif self.method == PBVS:
                 mode = PBVS
@@ -272,6 +417,8 @@ class ServoSession:
             self._full = 0
         self.driver = driver if mode != LOST else None
         self.mode = mode
+        if self.driver is not None:
+            self.last_driver = self.driver
         if mode != previous_mode or (mode != LOST and self.driver is not previous_driver):
             reason = self._describe()
             self.switches.append((now, f"{previous_mode} -> {mode}: {reason}"))
@@ -280,13 +427,14 @@ class ServoSession:
                 self._t0 = now
                 self._history.clear()
                 self._iterations = 0
+                self._best_error, self._best_t = math.inf, now
         if mode != LOST and self._stamp is not None:
             self.servo_s[mode] += dt
             if self.driver is not None and self.views[self.driver.id].image.n_reconstructed:
                 self.reconstructed_s += dt
         if mode == LOST:
             self.last_q = np.zeros(4)
-            if previous_mode != LOST:
+            if previous_mode != LOST and self.gave_up is None:
                 self.lost_since = now
         else:
             self.lost_since = None
@@ -305,63 +453,135 @@ class ServoSession:
             c_m_f = cam.chain.aircraft_from_camera(
                 pose.pose_f, angles.pan, angles.tilt, self.origin_height
             ).inverse()
-            xy_est, z_est = project_points(c_m_f, self.points_f)
+            if cam.points.size == 0:
+                continue
+            xy_est, z_est = project_points(c_m_f, self.points_f[cam.points])
             if not np.all(z_est > 0.0):
                 continue
             detected: dict[int, tuple[float, float]] = {}
             cx, cy = cam.half_size
+            index = {int(k): i for i, k in enumerate(cam.points)}  # point -> servo row
             for d in by_camera.get(cam.id, ()):
-                if d.feature == self.target.id:
-                    detected[d.point] = ((d.u - cx) / cam.focal_px, (d.v - cy) / cam.focal_px)
+                if d.feature == self.target.id and d.point in index:
+                    detected[index[d.point]] = (
+                        (d.u - cx) / cam.focal_px,
+                        (d.v - cy) / cam.focal_px,
+                    )
             image = augment(detected, xy_est, z_est)
-            image = self._smooth(cam.id, frame.cameras.get(cam.id), image)
-            rel = reliability(image, xy_est, cam.focal_px, cam.half_size)
-            before = self._reliability.get(cam.id)
-            if before is not None and rel > 0.0:
-                rel = before + RELIABILITY_FILTER * (rel - before)
+            camera_frame = frame.cameras.get(cam.id)
+            stamp = getattr(camera_frame, "stamp", None)
+            if stamp is None or stamp != self._image_stamp.get(cam.id):
+                self._image_stamp[cam.id] = stamp
+                lost = image.n_real < MIN_REAL_POINTS
+                self._missed[cam.id] = self._missed.get(cam.id, 0) + 1 if lost else 0
+            image = self._smooth(cam.id, camera_frame, image)
+            raw = reliability(image, xy_est, cam.focal_px, cam.half_size)
+            rel = _filter_reliability(
+                self._reliability.get(cam.id, 0.0),
+                raw,
+                self._missed.get(cam.id, 0) < DROPOUT_IMAGES,
+                RELIABILITY_FILTER,
+            )
             self._reliability[cam.id] = rel
             views[cam.id] = _View(cam, angles.pan, angles.tilt, image, rel)
         return views
 
     def _smooth(self, cid: str, frame: object, image: AugmentedImage) -> AugmentedImage:
-        """Exponential smoothing of the points at each new image of the camera."""
+        """Exponential smoothing of the points at each new image of the camera; a point
+        missed in fewer than :data:`DROPOUT_IMAGES` consecutive images keeps its filtered
+        position (a detector dropout) rather than being pulled half-way to its projection
+        through the pose estimate."""
         stamp = getattr(frame, "stamp", None)
         last = self._filtered.get(cid)
         if last is None or stamp is None:
-            xy = image.xy
+            xy, missed = image.xy, np.where(image.real, 0, DROPOUT_IMAGES)
         elif last[0] == stamp:
             return AugmentedImage(last[1], image.z, image.real)
         else:
+            missed = np.where(image.real, 0, last[2] + 1)
             xy = last[1] + FILTER * (image.xy - last[1])
+            held = missed < DROPOUT_IMAGES
+            xy[held] = np.where(image.real[held, None], xy[held], last[1][held])
         if stamp is not None:
-            self._filtered[cid] = (stamp, xy)
+            self._filtered[cid] = (stamp, xy, missed)
         return AugmentedImage(xy, image.z, image.real)
 
     def _choose_driver(self) -> ServoCamera | None:
-        usable = [v for v in self.views.values() if v.reliability > 0.0 and v.camera.reachable]
+        """The most reliable usable camera, with hysteresis by unit: within the driving
+        unit (one pan-tilt unit, twin views) the driver keeps the base while its
+        reliability is at least :data:`KEEP_DRIVER` of the unit's best camera; another
+        unit takes over when the driving unit has lost the target (the thesis's take-over
+        without a search, lines 3560-3580), or when the unit's best camera has stayed
+        under :data:`KEEP_DRIVER` of the best camera for :data:`ROBUST_TICKS` ticks. Each
+        unit servoes towards its own ``pan*`` and desired image: handing the base between
+        the front and the rear unit on one tick's reliability (which every fast motion
+        lowers in all cameras) made the A320 CP10 servo thrash between them and end
+        26 cm off."""
+        usable = [v for v in self.views.values() if v.reliability > 0.0 and _can_drive(v)]
         if not usable:
+            self._outranked = 0
             return None
         best = max(usable, key=lambda v: v.reliability)
         current = self.driver
-        if current is not None and current.id in self.views:
-            mine = self.views[current.id]
-            if mine in usable and mine.reliability >= KEEP_DRIVER * best.reliability:
-                return current
-        return best.camera
+        unit = [v for v in usable if current is not None and v.camera.unit.id == current.unit.id]
+        if current is None or not unit:
+            self._outranked = 0
+            return best.camera
+        unit_best = max(unit, key=lambda v: v.reliability)
+        if unit_best.reliability < KEEP_DRIVER * best.reliability:
+            self._outranked += 1
+            if self._outranked >= ROBUST_TICKS:
+                self._outranked = 0
+                return best.camera
+        else:
+            self._outranked = 0
+        mine = next((v for v in unit if v.camera is current), None)
+        if mine is not None and mine.reliability >= KEEP_DRIVER * unit_best.reliability:
+            return current
+        return unit_best.camera
+
+    def _pbvs_blocked(self, camera: ServoCamera) -> str | None:
+        """Why PBVS cannot run with ``camera`` (IBVS on the augmented image instead)."""
+        if not camera.pose_from_points:
+            return (
+                f"the {camera.points.size} point(s) of {self.target.id} in view from the "
+                "checkpoint do not determine its pose (PBVS needs >= 4 not on one line): "
+                "IBVS on the augmented image"
+            )
+        return self._no_pose
 
     def _describe(self) -> str:
-        n = len(self.points_f)
+        n = self.driver.points.size if self.driver is not None else len(self.points_f)
         rel = ", ".join(f"{cid} {v.reliability:.2f}" for cid, v in self.views.items())
+        if self.gave_up is not None:
+            return f"{self.target.id}: {self.gave_up}; metric go-to-goal finishes"
         if self.mode == LOST or self.driver is None:
             return (
                 f"{self.target.id}: lost, no camera has {MIN_REAL_POINTS} of {n} real points "
                 f"(reliability {rel or 'none'})"
             )
         view = self.views[self.driver.id]
+        blocked = (
+            self._pbvs_blocked(self.driver) if self.method == PBVS and self.mode == IBVS else None
+        )
         return (
             f"{self.target.id}: {self.mode} on {self.driver.id} ({view.image.n_real}/{n} real, "
             f"{view.image.n_reconstructed} reconstructed; reliability {rel})"
+            + (f"; {blocked}" if blocked else "")
         )
+
+    def servoed_unit(self) -> tuple[str, tuple[str, ...], float, float] | None:
+        """The unit whose camera drove the servo last (else the one that last tracked the
+        target by vision, :meth:`track_rates`), its camera ids, its ``pan*`` and its
+        image's half width (px)
+        (None: servoing never drove): what correct camera angle acts on afterwards. The
+        checkpoint's own camera may be another unit (the PTZ, or the front unit while the
+        rear one drove) whose pan was only tracking the target, not servoed."""
+        cam = self.last_driver or self.tracked
+        if cam is None:
+            return None
+        ids = tuple(c.id for c in self.cameras if c.unit.id == cam.unit.id)
+        return cam.unit.id, ids, cam.desired_pan, cam.half_size[0]
 
     def status(self) -> ServoStatus:
         view = self.views.get(self.driver.id) if self.driver is not None else None
@@ -401,10 +621,12 @@ class ServoSession:
         else:
             try:
                 c_m_f = camera_pose_from_points(
-                    self.points_f, view.image.xy, None, guess=self._pose_guess
+                    self.points_f[cam.points], view.image.xy, None, guess=self._pose_guess
                 )
-            except ValueError:
-                return VelocityCommand.stop(), False, "no pose from the augmented image"
+            except ValueError as exc:
+                # the next update switches to IBVS on the augmented image (with the reason)
+                self._no_pose = f"no pose from the augmented image ({exc}): IBVS on it"
+                return VelocityCommand.stop(), False, self._no_pose
             self._pose_guess = c_m_f
             error = pbvs_error_eq_3_25(c_m_f, cam.cd_m_f, self.centroid_f)
             lmat = pbvs_interaction_matrix_eq_3_35(c_m_f.apply(self.centroid_f), error[3:])
@@ -413,7 +635,18 @@ class ServoSession:
         # ill-conditioned (image noise would drive omega and pan against each other)
         w = p.pan_weight
         task = np.vstack((lmat @ jac, [0.0, 0.0, w, 0.0]))
-        error = np.append(error, w * wrap_angle(view.pan - cam.desired_pan))
+        # not wrapped: the unit travels within its limits (+-170 deg), never through +-180,
+        # so pan* = -160 deg from pan = +165 deg is 325 deg away, not 35 (a rear unit)
+        error = np.append(error, w * (view.pan - cam.desired_pan))
+        # the approach-line row: the base's offset across the checkpoint's heading line,
+        # which the image hardly tells from a rotation and no command removes at the goal,
+        # is steered out on the way there, from the localisation (module docstring)
+        line = self._approach_line()
+        if line is not None:
+            span = max(p.line_from - p.line_until, 1e-9)
+            fade = min(1.0, max(0.0, (line[1] - p.line_until) / span))
+            task = np.vstack((task, fade * p.line_weight * line[2]))
+            error = np.append(error, fade * p.line_weight * line[0])
         step = self.law.step(error, task, np.eye(4), t)
         pan_max, tilt_max = self.rates[cam.unit.id]
         q = np.array(
@@ -432,11 +665,29 @@ class ServoSession:
         rates = {cam.unit.id: PanTiltRate(float(q[2]), float(q[3]))}
         rates.update(self._track_others(cam.unit.id))
         err = float(np.linalg.norm(step.error))
+        if done:
+            pass
+        elif err < (1.0 - PROGRESS_SHARE) * self._best_error:
+            self._best_error, self._best_t = err, self._now
+        elif self._now - self._best_t > NO_PROGRESS_S:
+            self.gave_up = (
+                f"{self.mode} on {cam.id} made no progress for {NO_PROGRESS_S:.0f} s "
+                f"(|e| {err:.4f}, best {self._best_error:.4f})"
+            )
+            return VelocityCommand.stop(), False, self.gave_up
         why = (
             f"{self.mode} on {cam.id}: |e| {err:.4f}, q_dot ({q[0]:+.3f} m/s, {q[1]:+.3f}, "
             f"{q[2]:+.3f}, {q[3]:+.3f} rad/s), rank {step.rank}"
         )
         return VelocityCommand(float(q[0]), float(q[1]), rates), done, why
+
+    def _approach_line(self) -> tuple[float, float, np.ndarray] | None:
+        pose = self._pose
+        if pose is None or pose.placement is None:
+            return None
+        goal = pose.placement.pose_to_airport(self.checkpoint_f)
+        base = pose.pose_a
+        return approach_line_row(base.x, base.y, base.theta, goal.x, goal.y, goal.theta)
 
     def _track_others(self, driving_unit: str) -> dict[str, PanTiltRate]:
         """Track-feature (lines 745-764) for every other unit: its best camera's augmented
@@ -456,25 +707,116 @@ class ServoSession:
             out[uid] = PanTiltRate(_clamp(step.q_dot[2], pan_max), _clamp(step.q_dot[3], tilt_max))
         # a unit whose cameras cannot see the target at all (behind them) is aimed at it
         # through the pose estimate, as far as its limits allow
-        pose = self._pose
-        for uid, spec in self.units.items():
-            angles = self._angles.get(uid)
-            if uid == driving_unit or uid in out or angles is None or pose is None:
+        if self._pose is not None:
+            skip = {driving_unit, *out}
+            out.update(self.aim_rates(self._pose, self._angles, skip))
+        return out
+
+    def track_rates(
+        self, features: FeatureObservations | None, frame: SensorFrame, pose: PoseEstimate
+    ) -> dict[str, PanTiltRate]:
+        """Pan-tilt rates for every servo unit while metric go-to-goal drives: a unit whose
+        camera detects the target holds the detected points at their *desired* image
+        position with the pan-tilt unit only (track-feature, lines 745-764, towards ``s*``
+        rather than the image centre); the others are aimed through the pose estimate
+        (:meth:`aim_rates`).
+
+        A unit tracking by vision measures the target's true bearing: at the checkpoint its
+        pan differs from ``pan*`` by the base's heading error, which correct camera angle
+        then removes (:meth:`servoed_unit`). That is what vision gives a target that cannot
+        drive the base (one point fixes a bearing, not a pose)."""
+        by_camera = features.by_camera if features is not None else {}
+        out: dict[str, PanTiltRate] = {}
+        for uid in self.units:
+            angles = frame.pan_tilt.get(uid)
+            if angles is None:
                 continue
-            target_r = (
-                aircraft_from_robot(pose.pose_f, self.origin_height)
-                .inverse()
-                .apply(self.centroid_f)
+            best: tuple[ServoCamera, list[int], np.ndarray] | None = None
+            for cam in self.cameras:
+                if cam.unit.id != uid or cam.points.size == 0 or not cam.within_limits:
+                    continue  # a unit that cannot reach pan* measures no usable bearing
+                index = {int(k): i for i, k in enumerate(cam.points)}
+                rows, xy = [], []
+                cx, cy = cam.half_size
+                for d in by_camera.get(cam.id, ()):
+                    if d.feature == self.target.id and d.point in index:
+                        rows.append(index[d.point])
+                        xy.append(((d.u - cx) / cam.focal_px, (d.v - cy) / cam.focal_px))
+                if rows and (best is None or len(rows) > len(best[1])):
+                    best = (cam, rows, np.array(xy))
+            if best is None:
+                continue
+            cam, rows, xy = best
+            c_m_f = cam.chain.aircraft_from_camera(
+                pose.pose_f, angles.pan, angles.tilt, self.origin_height
+            ).inverse()
+            _, z = project_points(c_m_f, self.points_f[cam.points[rows]])
+            if not np.all(z > 0.0):
+                continue
+            jac = robot_jacobian_eq_3_2(cam.chain, angles.pan, angles.tilt)
+            step = self.trackers[uid].track_feature_step(
+                xy, z, jac, centroid_desired=cam.s_desired[rows].mean(axis=0)
             )
+            pan_max, tilt_max = self.rates[uid]
+            out[uid] = PanTiltRate(_clamp(step.q_dot[2], pan_max), _clamp(step.q_dot[3], tilt_max))
+            self.tracked = cam
+            offset = xy.mean(axis=0) - cam.s_desired[rows].mean(axis=0)
+            self.track_error_px = float(np.linalg.norm(offset)) * cam.focal_px
+        out.update(self.aim_rates(pose, frame.pan_tilt, set(out)))
+        return out
+
+    def aim_rates(
+        self, pose: PoseEstimate, angles: Mapping[str, PanTilt], skip: set[str] | None = None
+    ) -> dict[str, PanTiltRate]:
+        """Pan-tilt rates that aim every servo unit (but ``skip``) at the point of the target
+        its ``pan*``, ``tilt*`` aim at (:func:`desired_aim`) through the pose estimate,
+        within the unit's limits (proportional, rate-limited).
+
+        Metric go-to-goal towards the servo start and the checkpoint sends them
+        (:class:`AimedGoToGoal`): a unit left where the previous inspection put it (tilted
+        up at a radome) does not see a nose gear 4 m ahead, and the feature-visibility
+        guard would never hold."""
+        robot_from_f = aircraft_from_robot(pose.pose_f, self.origin_height).inverse()
+        k = self.params.track_gain
+        out: dict[str, PanTiltRate] = {}
+        for uid, spec in self.units.items():
+            measured = angles.get(uid)
+            if measured is None or (skip is not None and uid in skip):
+                continue
+            target_r = robot_from_f.apply(self.aims[uid])
             pan, tilt = pan_tilt_towards(spec.mount, spec.mount_yaw, target_r)
             pan = min(max(pan, spec.pan_limits[0]), spec.pan_limits[1])
             tilt = min(max(tilt, spec.tilt_limits[0]), spec.tilt_limits[1])
-            k = self.params.track_gain
             pan_max, tilt_max = self.rates[uid]
             out[uid] = PanTiltRate(
-                _clamp(k * (pan - angles.pan), pan_max), _clamp(k * (tilt - angles.tilt), tilt_max)
+                _clamp(k * (pan - measured.pan), pan_max),
+                _clamp(k * (tilt - measured.tilt), tilt_max),
             )
         return out
+
+
+def _can_drive(view: _View) -> bool:
+    """Whether ``view``'s camera may drive the base: ``pan*``/``tilt*`` within its unit's
+    limits, two points in view from the checkpoint, and its unit's measured pan within half
+    a field of view of ``pan*``. A rear unit still panning round to ``pan*`` = -164 deg from
+    +170 deg sees the target past its stop, 334 deg from ``pan*`` the way it must turn: as
+    a driver its pan row would throw the base about (B737 CP14 ended 8 cm off)."""
+    cam = view.camera
+    half_fov = math.atan2(cam.half_size[0], cam.focal_px)
+    return cam.reachable and abs(view.pan - cam.desired_pan) <= half_fov
+
+
+def _filter_reliability(before: float, raw: float, seeing: bool, gain: float) -> float:
+    """One camera's reliability after a new tick: exponential smoothing of ``raw`` while
+    the camera sees the target (``seeing``: it has not missed it in :data:`DROPOUT_IMAGES`
+    images), 0 once it has lost it. A dropout (``raw`` 0 in one image) decays the value
+    instead of resetting it, and a camera that sees the target again starts from its
+    ``raw`` value, not from 0 (either would hand the base to another camera)."""
+    if not seeing:
+        return 0.0
+    if before <= 0.0:
+        return raw
+    return before + gain * (raw - before)
 
 
 def _clamp(value: float, limit: float) -> float:
@@ -553,3 +895,87 @@ class VisualServoing(Controller):
         self.write(COMMAND, VelocityCommand.stop() if done else command)
         self.feedback_message = ("stop criterion (Algorithm 3.1) holds; " if done else "") + why
         return Status.SUCCESS if done else Status.RUNNING
+
+
+class AimedGoToGoal(GoToGoalController):
+    """Metric go-to-goal that keeps the servo units on the checkpoint's target
+    (:meth:`ServoSession.track_rates`: by vision where a camera sees it, else through the
+    pose estimate): towards the servo start and as the fallback of a servo navigation, so
+    the target is in view when the feature-visibility guard looks, and a unit measures the
+    target's bearing for correct camera angle where the target cannot drive the base."""
+
+    reads = (POSE, SENSOR_FRAME, FEATURES)
+
+    def __init__(
+        self,
+        session: ServoSession,
+        goal: Goal,
+        params: GoToGoalParams,
+        use_heading: bool,
+        period: float,
+        speed_limit: Callable[[Pose2], float] | None = None,
+        name: str = "go to goal",
+    ) -> None:
+        super().__init__(goal, params, use_heading, period, speed_limit, name)
+        self.session = session
+
+    def pan_tilt_rates(self, pose: PoseEstimate) -> Mapping[str, PanTiltRate]:
+        frame: SensorFrame | None = self.read(SENSOR_FRAME)
+        if frame is None:
+            return {}
+        return self.session.track_rates(self.read(FEATURES), frame, pose)
+
+
+class TrackFeature(Controller):
+    """Track-feature (seed lines 745-764) with the base still: the units hold the target
+    at its desired pixels (:meth:`ServoSession.track_rates`) until the tracking camera is
+    within ``tolerance_px`` for ``settle`` seconds (or ``timeout`` passes). It precedes
+    correct camera angle where the target cannot drive the base: the pan then measures
+    the target's bearing, not where the unit was when the base stopped turning."""
+
+    reads = (FEATURES, SENSOR_FRAME, POSE)
+    writes = (COMMAND,)
+
+    def __init__(
+        self,
+        session: ServoSession,
+        tolerance_px: float = 1.0,
+        settle: float = 0.5,
+        timeout: float = 10.0,
+        name: str = "",
+    ) -> None:
+        super().__init__(name or f"track {session.target.id}")
+        self.session = session
+        self.tolerance_px, self.settle, self.timeout = tolerance_px, settle, timeout
+        self._start: float | None = None
+        self._since: float | None = None
+
+    def initialise(self) -> None:
+        self._start = self._since = None
+        self.session.track_error_px = None
+
+    def update(self) -> Status:
+        frame: SensorFrame = self.read(SENSOR_FRAME)
+        pose: PoseEstimate | None = self.read(POSE)
+        now = frame.stamp
+        if self._start is None:
+            self._start = now
+        rates = self.session.track_rates(self.read(FEATURES), frame, pose) if pose else {}
+        err = self.session.track_error_px
+        if err is not None and err <= self.tolerance_px:
+            self._since = now if self._since is None else self._since
+        else:
+            self._since = None
+        if self._since is not None and now - self._since >= self.settle:
+            self.write(COMMAND, VelocityCommand.stop())
+            self.feedback_message = f"{self.session.target.id} at its desired pixel"
+            return Status.SUCCESS
+        if now - self._start >= self.timeout:
+            self.write(COMMAND, VelocityCommand.stop())
+            self.feedback_message = f"{self.session.target.id} not settled in {self.timeout:.0f} s"
+            return Status.SUCCESS
+        self.write(COMMAND, VelocityCommand(0.0, 0.0, rates))
+        self.feedback_message = f"tracking {self.session.target.id}: " + (
+            f"{err:.1f} px from s*" if err is not None else "not seen"
+        )
+        return Status.RUNNING

@@ -26,7 +26,7 @@ from numpy.typing import ArrayLike
 from behaviours.laws.theta_u import theta_u_from_rotation
 from executive.core.frames import Transform3
 
-__all__ = ["SUSPECT_RESIDUAL", "camera_pose_from_points", "is_planar"]
+__all__ = ["COLLINEAR", "SUSPECT_RESIDUAL", "camera_pose_from_points", "is_planar", "is_well_posed"]
 
 SUSPECT_RESIDUAL = 0.05
 """An IPPE pose whose RMS reprojection residual exceeds this fraction of the image
@@ -41,6 +41,28 @@ def is_planar(points_o: ArrayLike, tolerance: float = 1e-6) -> bool:
     centred = pts - pts.mean(axis=0)
     s = np.linalg.svd(centred, compute_uv=False)
     return bool(s[2] <= tolerance * max(s[0], 1e-300))
+
+
+COLLINEAR = 0.05
+"""Points whose second principal spread is below this fraction of the first are treated as
+collinear by :func:`is_well_posed`."""
+
+
+def is_well_posed(points_o: ArrayLike, collinear: float = COLLINEAR) -> bool:
+    """Whether the target's points determine a camera pose (thesis §3.4's "pose
+    calculation", lines 2782-2790): at least 4 points, not (nearly) on one line.
+
+    Three points have up to four P3P solutions, two or fewer a continuum; points on a line
+    leave the rotation about that line unobservable (a wing's leading edge seen as three
+    marks along it), so the solver returns one pose of a family and PBVS (eq. 3.25) servoes
+    on noise. ``collinear``: the ratio of the second to the first singular value of the
+    centred points below which they count as one line.
+    """
+    pts = np.asarray(points_o, dtype=float).reshape(-1, 3)
+    if pts.shape[0] < 4:
+        return False
+    s = np.linalg.svd(pts - pts.mean(axis=0), compute_uv=False)
+    return bool(s[1] > collinear * max(s[0], 1e-300))
 
 
 def camera_pose_from_points(

@@ -60,6 +60,7 @@ __all__ = [
     "InteractionAt",
     "ServoStep",
     "VisualServo",
+    "approach_line_row",
     "control_law_eq_3_10",
     "pseudo_inverse",
     "stop_algorithm_3_1",
@@ -160,6 +161,40 @@ def stop_algorithm_3_1(
     q = np.abs(np.asarray(q_dot, dtype=float))
     limit = np.broadcast_to(np.asarray(thresholds, dtype=float), q.shape)
     return bool(np.all(q <= limit))
+
+
+def approach_line_row(
+    x: float, y: float, theta: float, goal_x: float, goal_y: float, goal_theta: float
+) -> tuple[float, float, np.ndarray]:
+    """A task row that steers a unicycle onto the goal's heading line (a secondary task
+    stacked under the visual rows of eq. 3.10, for the robot Jacobian's q = (v, omega,
+    omega_pan, omega_tilt)); poses in a right-handed planar frame, heading ``theta``.
+
+    Four controls steer five configuration variables (base x, y, theta, pan, tilt). The
+    offset of the base *across* the checkpoint's heading line is the one no instantaneous
+    command reaches (no lateral velocity); in the image it is nearly the same as a
+    rotation (a flat target a few metres away), so the least-squares law of eq. 3.10 ends
+    wherever the start left it (Brockett: no smooth static feedback removes it). The row
+    aims the base at the goal point while it still has distance to go (pure pursuit): with
+    ``c`` the cross-track offset, ``d`` the along-track distance still to go (positive
+    behind the goal) and ``dtheta = theta - theta*``,
+
+        e = c + d sin(dtheta)       (where the heading ray crosses the goal's normal)
+        de/dt = v sin(dtheta) (1 - cos(dtheta)) + d cos(dtheta) omega
+
+    so the offset shrinks in proportion to the distance left. The row steers with
+    ``omega`` only: its drift term is second order, and the speed is the visual rows' to
+    choose. Returns ``(e, d, row)``, ``row`` the (4,) Jacobian of ``e`` in q; the caller
+    drops the row near the goal, where ``d`` vanishes and what is left of ``c`` is the
+    visual rows' (the row would otherwise hold a residual against them).
+    """
+    ch, sh = math.cos(goal_theta), math.sin(goal_theta)
+    dx, dy = x - goal_x, y - goal_y
+    cross = -sh * dx + ch * dy
+    ahead = -(ch * dx + sh * dy)
+    dth = math.atan2(math.sin(theta - goal_theta), math.cos(theta - goal_theta))
+    d = max(ahead, 0.0)
+    return cross + d * math.sin(dth), ahead, np.array([0.0, d * math.cos(dth), 0.0, 0.0])
 
 
 @dataclass(frozen=True, slots=True)
