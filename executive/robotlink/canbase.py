@@ -62,6 +62,11 @@ DEFAULT_BASE_TIMEOUT = 0.1
 """The executive stops when no valid BASE_HEARTBEAT arrived for this long (s); the DBC's
 TimeoutMs of BASE_HEARTBEAT."""
 RESET_MAGIC = 0xA55A
+WATCHDOG_TRIPS = 3
+WATCHDOG_TRIP_WINDOW = 10.0
+"""The base braking on its watchdog this many times within this many seconds is a link
+fault: one late tick (a scheduling stall) only holds the robot for a moment, the base's
+own rule, and the run goes on; a heartbeat that keeps arriving late cannot be trusted."""
 COUNTER_MODULO = 16
 CRC_SIGNAL = "CRC8"
 COUNTER_SIGNAL = "COUNTER"
@@ -545,6 +550,7 @@ class CanBaseLink(Wire):
         self._latencies: deque[float] = deque(maxlen=_LATENCY_WINDOW)
         self._latency_count = 0
         self._sent_listeners: list[Callable[[can.Message], None]] = []
+        self._watchdog_trips: list[float] = []
         self._notifier = can.Notifier(bus, [_Receiver(self)], timeout=0.05)
 
     # -- lifecycle
@@ -676,9 +682,11 @@ class CanBaseLink(Wire):
                 )
             case "BASE_HEARTBEAT":
                 state = BaseState(int(s["STATE"]))
-                latest = dataclasses.replace(latest, base_state=state, heartbeat_at=now)
-                if state is BaseState.BRAKING_WATCHDOG:
+                tripped = state is BaseState.BRAKING_WATCHDOG
+                if tripped and latest.base_state is BaseState.OK:  # not the start-up state
                     self._events.watchdog_braking_at = now
+                    self._watchdog_trips.append(now)
+                latest = dataclasses.replace(latest, base_state=state, heartbeat_at=now)
             case "BASE_STATUS":
                 latest = dataclasses.replace(
                     latest,
@@ -724,20 +732,38 @@ class CanBaseLink(Wire):
         reasons = _bus_state_reasons(self._bus)
         with self._lock:
             latest, events = self._latest, dataclasses.replace(self._events)
+            trips = sum(1 for t in self._watchdog_trips if now - t <= WATCHDOG_TRIP_WINDOW)
         reasons += self._heartbeat_reasons(latest, events, now)
+        if trips >= WATCHDOG_TRIPS:
+            reasons.append(
+                f"the base braked on its watchdog {trips} times within {WATCHDOG_TRIP_WINDOW:g} s:"
+                " the executive's heartbeat does not keep time"
+            )
         reasons += self._error_reasons(events, now)
         reasons += _base_reasons(latest)
         return list(dict.fromkeys(reasons))
 
     def holds(self) -> list[str]:
-        """Why the base brakes by its own rules (bumper latch, hardware e-stop): not a
-        link fault, the run waits for the operator (:func:`base_holds`)."""
+        """Why the base brakes by its own rules (bumper latch, hardware e-stop, one late
+        heartbeat of ours): not a link fault; the run waits for the operator or for the
+        next heartbeat (:func:`base_holds`). Repeated watchdog braking is a fault."""
+        now = self._clock()
         with self._lock:
-            return base_holds(self._latest)
+            holds = base_holds(self._latest)
+            at = self._events.watchdog_braking_at
+        if at is not None and now - at <= self.config.error_hold:
+            holds.append(f"the base braked on its watchdog {now - at:.1f} s ago (a late tick)")
+        return holds
+
+    @property
+    def watchdog_trips(self) -> int:
+        """How often the base braked on its watchdog while the link was open."""
+        with self._lock:
+            return len(self._watchdog_trips)
 
     def _heartbeat_reasons(self, latest: BaseSnapshot, events: _Events, now: float) -> list[str]:
         reasons = []
-        timeout, watchdog = self.config.base_timeout, self.config.watchdog
+        timeout = self.config.base_timeout
         if latest.heartbeat_at is None:
             if now - self._opened_at > timeout:
                 reasons.append(
@@ -745,12 +771,8 @@ class CanBaseLink(Wire):
                 )
         elif now - latest.heartbeat_at > timeout:
             reasons.append(f"base heartbeat lost for {now - latest.heartbeat_at:.2f} s")
-        sent = events.heartbeat_sent_at
-        if sent is not None and now - sent > watchdog:
-            reasons.append(
-                f"executive heartbeat late: last sent {now - sent:.2f} s ago, "
-                f"the base's watchdog is {watchdog:.2f} s"
-            )
+        # Our own late heartbeat is not judged here: the base brakes on it by itself (a
+        # hold), and repeated braking is the fault (WATCHDOG_TRIPS).
         return reasons
 
     def _error_reasons(self, events: _Events, now: float) -> list[str]:
@@ -766,8 +788,6 @@ class CanBaseLink(Wire):
             reasons.append(f"CAN receive failed: {events.receive_error[1]}")
         if events.refusal is not None and recent(events.refusal[0]):
             reasons.append(events.refusal[1])
-        if recent(events.watchdog_braking_at):  # held: one heartbeat later it says OK again
-            reasons.append(_STATE_REASONS[BaseState.BRAKING_WATCHDOG])
         if events.repeat is not None and recent(events.repeat[0]):
             _, name, counter = events.repeat
             reasons.append(f"stale frame from the base: {name} repeated rolling counter {counter}")
@@ -803,7 +823,7 @@ def _base_reasons(latest: BaseSnapshot) -> list[str]:
         reasons.append(f"base fault: {fault.name}")
     if latest.base_state is BaseState.FAULT:
         reasons.append(f"base fault: {fault.name if fault else 'unspecified'}")
-    elif latest.base_state not in (None, BaseState.OK, *HOLDS):
+    elif latest.base_state not in (None, BaseState.OK, BaseState.BRAKING_WATCHDOG, *HOLDS):
         reasons.append(_STATE_REASONS[latest.base_state])
     return reasons
 

@@ -266,6 +266,7 @@ class RobotLink:
             "can": {
                 "frames": _plain(stats.frames),
                 "error_frames": stats.error_frames,
+                "watchdog_trips": self.base.watchdog_trips,
                 "send_errors": stats.send_errors,
                 "refused_commands": stats.refused_commands,
                 "receive_latency_ms": {
