@@ -110,7 +110,6 @@ def test_killed_run_the_base_brakes_and_resume_finishes(hil):
         return [e for e in rig.truth().of_kind("watchdog") if e["unix"] >= killed - 0.2]
 
     rig.wait_for(braked, 5, "the base's watchdog")
-    assert len(rig.truth().of_kind("watchdog")) == 1, "the watchdog never fired before"
     fired = braked()[0]
     # measured on the base's side: from the last valid heartbeat to the brake
     assert fired["after_s"] <= BRAKE_WITHIN, fired
