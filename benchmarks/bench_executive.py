@@ -9,6 +9,8 @@ Usage:  OPENBLAS_NUM_THREADS=1 python benchmarks/bench_executive.py [--seconds 3
     mean, p99, max. Measured twice: py_trees' logging at its default level (WARN), and at
     DEBUG with its output (py_trees prints it) captured in memory — py_trees formats its
     debug strings on every tick either way; the difference is what emitting them costs.
+    The quiet run's ticks are also split by what drove: visual servoing (the controller
+    events' "visual servoing (pbvs|ibvs)" intervals, issue 13) against everything else.
 (2) The whole A320 dry-run (executive + simulator + ground-truth judge): simulated
     seconds per wall-clock second.
 """
@@ -21,10 +23,11 @@ import io
 import time
 from pathlib import Path
 
+import numpy as np
 import py_trees
 
 from executive.core.resources import missions_dir
-from executive.dryrun import dry_run
+from executive.dryrun import DryRun, dry_run
 from sim2d.scenario import load_scenario
 
 
@@ -32,7 +35,38 @@ def scenario_path(name: str) -> Path:
     return missions_dir() / "a320" / "scenarios" / f"{name}.xml"
 
 
-def tick_figures(seconds: float, debug: bool, name: str) -> dict[str, float]:
+def _summary(ms: np.ndarray) -> dict[str, float]:
+    if ms.size == 0:
+        return {"ticks": 0}
+    return {
+        "ticks": int(ms.size),
+        "mean_ms": round(float(ms.mean()), 3),
+        "p99_ms": round(float(np.percentile(ms, 99)), 3),
+        "max_ms": round(float(ms.max()), 3),
+    }
+
+
+def servo_split(run: DryRun) -> dict[str, dict[str, float]]:
+    """The run's tick durations while visual servoing drove the base, and otherwise."""
+    stats = run.result.stats
+    ms = np.array(stats.durations) * 1e3
+    servoing = np.zeros(ms.size, dtype=bool)
+    start = None
+    for event in run.result.events:
+        if event.kind != "controller":
+            continue
+        tick = min(ms.size, round(event.t / stats.period))
+        if str(event.detail.get("to", "")).startswith("visual servoing"):
+            start = tick if start is None else start
+        elif start is not None:
+            servoing[start:tick] = True
+            start = None
+    if start is not None:
+        servoing[start:] = True
+    return {"servoing": _summary(ms[servoing]), "other": _summary(ms[~servoing])}
+
+
+def tick_figures(seconds: float, debug: bool, name: str) -> dict[str, object]:
     scenario = load_scenario(scenario_path(name))
     previous = py_trees.logging.level
     if debug:
@@ -42,7 +76,7 @@ def tick_figures(seconds: float, debug: bool, name: str) -> dict[str, float]:
             run = dry_run(scenario, max_time=seconds)
     finally:
         py_trees.logging.level = previous
-    return run.result.stats.summary()
+    return {**run.result.stats.summary(), **({} if debug else servo_split(run))}
 
 
 def main() -> None:

@@ -516,10 +516,45 @@ def _fmt(value: Any) -> str:
     return str(value)
 
 
+def plot_image_plane(scene: Scene, result: dict[str, Any], path: Path) -> None:
+    """The measured image points along the run (one line per point), from the start (o)
+    to the desired features (x): the picture of an IBVS/PBVS run in the image."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    track = np.array(result["_trajectory"])  # (iterations, N, 2) normalised
+    desired, _ = project_points(_c_m_o(scene, scene.desired), scene.points)
+    if scene.camera_matrix is not None:
+        track = np.array([_to_pixels(scene, xy) for xy in track])
+        desired = _to_pixels(scene, desired)
+        unit = "px"
+    else:
+        unit = "normalised"
+    fig, ax = plt.subplots(figsize=(5.5, 4.5))
+    for k in range(track.shape[1]):
+        (line,) = ax.plot(track[:, k, 0], track[:, k, 1], lw=1.2)
+        ax.plot(*track[0, k], "o", color=line.get_color())
+        ax.plot(*desired[k], "x", color="black", ms=9)
+    ax.set_xlabel(f"u ({unit})")
+    ax.set_ylabel(f"v ({unit})")
+    ax.invert_yaxis()
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_title(f"{path.stem}: {result['iterations']} iterations (o start, x desired)")
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--scene", type=Path, help="scene file (JSON)")
     parser.add_argument("--json", action="store_true", help="print the figures as JSON")
+    parser.add_argument(
+        "--plot", type=Path, help="write the image-plane trajectories of the points (PNG)"
+    )
     parser.add_argument(
         "--step-timing", action="store_true", help="time one servo step (4 points, 4 DoF)"
     )
@@ -540,7 +575,10 @@ def main(argv: list[str] | None = None) -> int:
     except SceneError as exc:
         print(f"bench_servo: {exc}", file=sys.stderr)
         return 2
-    ours = public(run_scene(scene))
+    result = run_scene(scene)
+    if args.plot is not None:
+        plot_image_plane(scene, result, args.plot)
+    ours = public(result)
     runs = [(label, public(r)) for label, r in reference_runs(scene)]
     published = published_errors(scene)
     source = scene.reference.get("source", "")

@@ -88,3 +88,33 @@ def heading_error(a: Pose2, b: Pose2) -> float:
 
 def position_error(a: Pose2, b: Pose2) -> float:
     return float(np.hypot(a.x - b.x, a.y - b.y))
+
+
+SERVO_POSITION, SERVO_HEADING_DEG = 0.02, 0.5
+"""Issue 13's bar for a checkpoint finished by visual servoing (m, deg)."""
+
+
+def assert_finished_by_servoing(run) -> list[str]:
+    """Every checkpoint of ``run`` with a servo target that a camera sees with two points or
+    more from the checkpoint was finished by visual servoing (the last controller before its
+    inspection, correct camera angle aside) within 2 cm and 0.5 deg of its true pose; the
+    one-point (bearing-only) targets, which the compiler warns about, are metric. Returns
+    the ids of the servoed checkpoints."""
+    assert not [w for w in run.warnings if "servo-metric" in w], run.warnings
+    bearing_only = {
+        cp.id
+        for cp in run.scenario.mission.checkpoints
+        if any(f"checkpoint '{cp.id}'" in w and "servo-bearing-only" in w for w in run.warnings)
+    }
+    names = [e.detail["to"] for e in run.result.events if e.kind == "controller"]
+    servoed = []
+    for cp, outcome in zip(run.scenario.mission.checkpoints, run.checkpoints, strict=True):
+        if cp.target is None or cp.id in bearing_only:
+            continue
+        inspect = names.index(f"inspect {cp.id}")
+        before = [n for n in names[:inspect] if not n.startswith("correct ")]
+        assert before[-1].startswith("visual servoing ("), (cp.id, before[-3:])
+        assert outcome.position_error <= SERVO_POSITION, (cp.id, outcome)
+        assert outcome.heading_error_deg <= SERVO_HEADING_DEG, (cp.id, outcome)
+        servoed.append(cp.id)
+    return servoed

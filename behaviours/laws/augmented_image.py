@@ -32,9 +32,18 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
+from behaviours.laws.interaction import point_interaction_matrix_eq_3_17
 from executive.core.frames import FloatArray
 
-__all__ = ["MIN_REAL_POINTS", "AugmentedImage", "augment", "reliability"]
+__all__ = [
+    "MIN_REAL_POINTS",
+    "AugmentedImage",
+    "augment",
+    "feature_motion_eq_3_16",
+    "filter_features",
+    "filter_gain",
+    "reliability",
+]
 
 MIN_REAL_POINTS = 2
 """Servoing continues on the augmented image while this many real points remain."""
@@ -94,3 +103,53 @@ def reliability(
     room = np.min(np.array(half_size_px, dtype=float)[None, :] - px)
     margin = min(1.0, max(0.0, room / margin_px))
     return (image.n_real / n) * math.exp(-residual / residual_scale_px) * margin
+
+
+def feature_motion_eq_3_16(
+    xy: ArrayLike, depth: ArrayLike, robot_jacobian: ArrayLike, dq: ArrayLike
+) -> FloatArray:
+    """How the image points move for a small robot motion ``dq = (ds, dtheta, dpan,
+    dtilt)``: ``ds = L_s J dq`` (eq. 3.16 with the robot Jacobian of eq. 3.2, ``J`` 6x4
+    from q to the camera twist, ``L_s`` the stacked point interaction matrix of eq.
+    3.17-3.18 at ``xy`` (N, 2) normalised with depths ``depth`` (N,)). Returns (N, 2)."""
+    xy = np.asarray(xy, dtype=float).reshape(-1, 2)
+    lmat = point_interaction_matrix_eq_3_17(xy, depth)
+    motion = lmat @ np.asarray(robot_jacobian, dtype=float) @ np.asarray(dq, dtype=float)
+    return motion.reshape(-1, 2)
+
+
+def filter_features(
+    previous: ArrayLike, motion: ArrayLike, measured: ArrayLike, gain: float
+) -> FloatArray:
+    """A predict-correct (alpha) filter of image points: the previous estimate moved by
+    the robot's own measured motion (:func:`feature_motion_eq_3_16`, wheels, IMU and
+    pan-tilt encoders since the previous image), then pulled by ``gain`` in (0, 1]
+    towards the new detections. Because the prediction carries the motion, a small gain
+    averages the detection noise over about ``2 / gain`` images without the lag a plain
+    exponential smoothing has while the robot moves (the servo's final accuracy is set
+    by this noise: 0.5 px on two points 0.5 m apart at 3 m is 2 cm of depth)."""
+    if not 0.0 < gain <= 1.0:
+        raise ValueError(f"gain must be in (0, 1], got {gain}")
+    predicted = np.asarray(previous, dtype=float) + np.asarray(motion, dtype=float)
+    return predicted + gain * (np.asarray(measured, dtype=float) - predicted)
+
+
+def filter_gain(
+    variance: float,
+    motion: ArrayLike,
+    detection_sigma: float,
+    model_share: float,
+    still_sigma: float,
+) -> tuple[float, float]:
+    """The gain of :func:`filter_features` as a scalar Kalman filter (one variance for
+    every coordinate of a camera's points, normalised units): the prediction's variance
+    grows by ``still_sigma^2`` per image plus ``(model_share * |motion|_max)^2``, the part
+    of the predicted image motion the wheel/IMU model may miss (slip); the gain weighs it
+    against the detector's ``detection_sigma^2``. Moving, the gain is near 1 (the
+    detections lead); as the servo converges and the robot stills, it falls towards
+    ``still_sigma / detection_sigma`` and the estimate averages the noise over more
+    images. Returns ``(gain, variance after the correction)``."""
+    shift = float(np.max(np.abs(motion))) if np.size(motion) else 0.0
+    predicted = variance + still_sigma**2 + (model_share * shift) ** 2
+    gain = predicted / (predicted + detection_sigma**2)
+    return gain, (1.0 - gain) * predicted
