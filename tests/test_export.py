@@ -309,8 +309,10 @@ def test_render_a320_is_one_wide_legible_figure(a320_root, tmp_path):
     png = render(a320_root, tmp_path / "a320.png")
     image = matplotlib.image.imread(png)
     height, width = image.shape[:2]
-    # 100 dpi and 1.25 in a leaf: the text keeps its size however big the tree
-    assert width >= leaves * 100 and width <= 65536
+    # 100 dpi and 1.25 in a leaf: the text keeps its size however big the tree, up to
+    # Agg's 65536-pixel side (the A320 with its servo branches: ~990 leaves), where the
+    # PNG's resolution is lowered and the figure stays as wide as a PNG can be
+    assert width >= min(leaves * 100, 65000) and width <= 65536
     assert width > 20 * height
     svg_w, _ = svg_size(render(a320_root, tmp_path / "a320.svg"))
     assert svg_w >= leaves * 1.25 * 72

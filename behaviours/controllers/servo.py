@@ -182,13 +182,21 @@ class ServoParams:
     max_speed: float = 0.3
     max_omega: float = 0.5
     pan_weight: float = 1.0
-    """Weight of the secondary task row ``pan - pan*`` against the visual error."""
+    """Weight of the secondary task row ``pan - pan*`` against the visual error, at the
+    goal; :attr:`pan_weight_far` of it where the approach-line row steers at full weight."""
+    pan_weight_far: float = 0.1
     line_weight: float = 3.0
     """Weight (1/m) of the approach-line row
     (:func:`behaviours.laws.servo.approach_line_row`) against the visual error. Against
     the pan row (the camera's yaw held by the image, turning the base costs pan error) the
     least-squares law turns the base by ``w^2 d^2 / (w^2 d^2 + 1)`` of the pure-pursuit
     angle ``-c / d``: 0.9 of it 1 m out (the servo start), half at 1 / w."""
+    line_gain: float = 4.0
+    """The approach-line row's error is regulated this many times faster than the visual
+    rows (its error scaled, its Jacobian not): eq. 3.10 shrinks each independent task
+    error as ``exp(-lambda t)`` in *time*, and at the servo's speed the approach takes
+    three seconds, at a lambda near ``lambda_inf``: at the visual rows' rate the offset
+    across the line had shrunk by a third when the row faded out."""
     line_from: float = 1.0
     line_until: float = 0.25
     """The approach-line row's weight fades linearly from ``line_weight`` with the base
@@ -696,23 +704,29 @@ class ServoSession:
             self._pose_guess = c_m_f
             error = pbvs_error_eq_3_25(c_m_f, cam.cd_m_f, self.centroid_f)
             lmat = pbvs_interaction_matrix_eq_3_35(c_m_f.apply(self.centroid_f), error[3:])
-        # the secondary row pan -> pan* (module docstring): it picks the member of the
-        # family of base poses that share one camera pose, which L J alone leaves
-        # ill-conditioned (image noise would drive omega and pan against each other)
-        w = p.pan_weight
-        task = np.vstack((lmat @ jac, [0.0, 0.0, w, 0.0]))
-        # not wrapped: the unit travels within its limits (+-170 deg), never through +-180,
-        # so pan* = -160 deg from pan = +165 deg is 325 deg away, not 35 (a rear unit)
-        error = np.append(error, w * (view.pan - cam.desired_pan))
         # the approach-line row: the base's offset across the checkpoint's heading line,
         # which the image hardly tells from a rotation and no command removes at the goal,
         # is steered out on the way there, from the localisation (module docstring)
         line = self._approach_line()
+        fade = 0.0
         if line is not None:
             span = max(p.line_from - p.line_until, 1e-9)
             fade = min(1.0, max(0.0, (line[1] - p.line_until) / span))
+        # the secondary row pan -> pan* (module docstring): it picks the member of the
+        # family of base poses that share one camera pose, which L J alone leaves
+        # ill-conditioned (image noise would drive omega and pan against each other). It
+        # matters at the goal; on the way, where the line row turns the base towards the
+        # goal and the pan absorbs the turn, it would hold the base against it (with the
+        # pan row at full weight all along, a 1.5 cm offset at the servo start was still
+        # 1.4 cm at the goal): it weighs in as the line row fades out
+        w = p.pan_weight * max(p.pan_weight_far, 1.0 - fade)
+        task = np.vstack((lmat @ jac, [0.0, 0.0, w, 0.0]))
+        # not wrapped: the unit travels within its limits (+-170 deg), never through +-180,
+        # so pan* = -160 deg from pan = +165 deg is 325 deg away, not 35 (a rear unit)
+        error = np.append(error, w * (view.pan - cam.desired_pan))
+        if line is not None:
             task = np.vstack((task, fade * p.line_weight * line[2]))
-            error = np.append(error, fade * p.line_weight * line[0])
+            error = np.append(error, fade * p.line_weight * p.line_gain * line[0])
         step = self.law.step(error, task, np.eye(4), t)
         pan_max, tilt_max = self.rates[cam.unit.id]
         q = np.array(
