@@ -44,6 +44,8 @@ class MissionProgress:
     goal: str | None = None
     completed: tuple[str, ...] = ()
     results: tuple[ItemResult, ...] = ()
+    skipped: tuple[str, ...] = ()
+    """Completed checkpoints the operator chose to skip (trapped): not inspected."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -91,6 +93,18 @@ class ServoStatus:
     """Every task switch of this servo (mode or driving camera) with its time and reason."""
 
 
+@dataclass(frozen=True, slots=True)
+class OperatorQuestion:
+    """A question the mission asks the operator (the thesis's "operator asked for help",
+    issue 15): ``id`` changes with each new question; the answer comes back as
+    :attr:`executive.core.records.OperatorRequests.answer`, one of ``choices``."""
+
+    stamp: float
+    id: str
+    text: str
+    choices: tuple[str, ...]
+
+
 SENSOR_FRAME = Key("/sensors/frame", SensorFrame)
 POSE = Key("/state/pose", PoseEstimate)
 OBSTACLES = Key("/state/obstacles", Obstacles)
@@ -99,7 +113,18 @@ COMMAND = Key("/command", VelocityCommand)
 PROGRESS = Key("/mission/progress", MissionProgress)
 OPERATOR = Key("/operator", OperatorRequests)
 SERVO = Key("/state/servo", ServoStatus)
+QUESTION = Key("/operator/question", OperatorQuestion)
 
-ALL_KEYS = (SENSOR_FRAME, POSE, OBSTACLES, FEATURES, COMMAND, PROGRESS, OPERATOR, SERVO)
+ALL_KEYS = (
+    SENSOR_FRAME,
+    POSE,
+    OBSTACLES,
+    FEATURES,
+    COMMAND,
+    PROGRESS,
+    OPERATOR,
+    SERVO,
+    QUESTION,
+)
 EXTERNAL_KEYS = (SENSOR_FRAME, OPERATOR)
 """Written by the runtime before each tick, not by a behaviour."""

@@ -227,6 +227,8 @@ def _resume_command(args: argparse.Namespace, scenario: Path) -> str:
         words.append("--servo" if args.servo else "--no-servo")
     if args.quiet:
         words.append("--quiet")
+    if not args.record:
+        words.append("--no-record")
     return shlex.join([*words, "--resume"])
 
 
@@ -244,6 +246,12 @@ def _check_dry_run_arguments(args: argparse.Namespace) -> str | None:
         return f"--max-time {args.max_time}: simulated seconds, more than 0"
     if args.max_missed_deadlines < 0:
         return f"--max-missed-deadlines {args.max_missed_deadlines}: 0 (never) or more"
+    if not (math.isfinite(args.pace) and 0.0 < args.pace <= 100.0):
+        return f"--pace {args.pace:g}: simulated seconds per second, more than 0, at most 100"
+    if args.live is not None:
+        _, _, port = str(args.live).rpartition(":")
+        if not (port.isdigit() and 0 <= int(port) <= 65535):
+            return f"--live {args.live}: [HOST:]PORT with a port from 0 to 65535"
     problem = output_dir_problem(args.out)
     if problem:
         return f"--out {problem}"
@@ -280,6 +288,7 @@ def _dry_run(args: argparse.Namespace, stop: StopRequest) -> int:
     from executive.core.files import UnusableFileError, describe_os_error, remove_if_present
     from executive.dryrun import dry_run
     from executive.journal import check_resumable, check_resume_pose, read_journal
+    from executive.recording import RECORDING_FILE, recording_path, recordings_in
     from executive.report import write_report
 
     bad = _check_dry_run_arguments(args)
@@ -317,6 +326,10 @@ def _dry_run(args: argparse.Namespace, stop: StopRequest) -> int:
             )
             return EXIT_OK
         check_resume_pose(state, mission, journal)
+    # a resumed run adds run-2.mcap, ...; a new one replaces them all with run.mcap
+    record = None
+    if args.record:
+        record = recording_path(out) if args.resume else out / RECORDING_FILE
 
     def clear_old_report() -> None:
         """Once the run can start (compiled, simulator built): before, nothing is lost."""
@@ -326,13 +339,15 @@ def _dry_run(args: argparse.Namespace, stop: StopRequest) -> int:
             out.mkdir(parents=True, exist_ok=True)
             for name in REPORT_FILES if args.resume else (*REPORT_FILES, JOURNAL_FILE):
                 remove_if_present(out / name)
+            for old in () if args.resume else recordings_in(out):
+                remove_if_present(old)
         except UnusableFileError as exc:
             raise _OutputError(str(exc)) from None
         except OSError as exc:
             raise _OutputError(f"--out {describe_os_error(exc, out, 'preparing')}") from None
 
     try:
-        run = _run(dry_run, scenario, args, journal, state, stop, clear_old_report)
+        run = _run(dry_run, scenario, args, journal, state, stop, clear_old_report, record)
     except _InterruptedBeforeStartError:
         print(f"walkaround: {stop.reason} before the run started; nothing changed", file=sys.stderr)
         return 128 + (stop.signal or 0)
@@ -345,6 +360,8 @@ def _dry_run(args: argparse.Namespace, stop: StopRequest) -> int:
         report_error = describe_os_error(exc, getattr(exc, "filename", None) or out)
     for warning in run.warnings:
         print(f"warning: {warning}", file=sys.stderr)
+    if run.recording_error:
+        print(f"warning: {run.recording_error}", file=sys.stderr)
     for event in run.result.events:
         if event.kind == "checkpoint-uncertain":
             print(f"warning: {event.detail['reason']}", file=sys.stderr)
@@ -395,20 +412,66 @@ def _run(
     state: JournalState | None,
     stop: StopRequest,
     before_start: Callable[[], None],
+    record: Path | None = None,
 ) -> DryRun:
-    return dry_run(
-        scenario,
+    live: dict[str, object] = {}
+    server = None
+    if args.live is not None:
+        server, live = _serve_live(scenario, args, journal.parent)
+    try:
+        return dry_run(
+            scenario,
+            rate_hz=args.rate,
+            journal_path=journal,
+            resume=state if state is not None else False,
+            progress_out=sys.stderr if not args.quiet else None,
+            avoidance=args.avoidance,
+            stop=stop,
+            max_missed_deadlines=args.max_missed_deadlines or None,
+            max_time=args.max_time,
+            before_start=before_start,
+            servo=args.servo,
+            record=record,
+            **live,
+        )
+    finally:
+        if server is not None:
+            server.close()
+
+
+def _serve_live(
+    scenario: Scenario, args: argparse.Namespace, out: Path
+) -> tuple[object, dict[str, object]]:
+    """The HUD of a live dry-run (issue 15): real time, an operator at hand."""
+    from executive.hud.server import HudServer
+    from executive.hud.telemetry import Telemetry
+    from executive.operator import OperatorState
+
+    host, _, port = str(args.live).rpartition(":")
+    state = OperatorState()
+    telemetry = Telemetry(
+        scenario.mission,
         rate_hz=args.rate,
-        journal_path=journal,
-        resume=state if state is not None else False,
-        progress_out=sys.stderr if not args.quiet else None,
-        avoidance=args.avoidance,
-        stop=stop,
-        max_missed_deadlines=args.max_missed_deadlines or None,
-        max_time=args.max_time,
-        before_start=before_start,
-        servo=args.servo,
+        operator=state.snapshot,
+        ask=state.ask,
+        withdraw=state.withdraw,
     )
+    try:
+        server = HudServer(
+            state, out, status=dict, host=host or "127.0.0.1", port=int(port), telemetry=telemetry
+        )
+    except OSError as exc:
+        raise _OutputError(f"--live {args.live}: cannot serve the HUD there ({exc})") from None
+    print(f"operator HUD: {server.url}\n(the secret is also in {out / 'operator.secret'})")
+    if sys.stdout.isatty():
+        print(server.qr())
+    options = {
+        "operator": state,
+        "observers": (telemetry.on_tick,),
+        "pace": args.pace,
+        "ask_operator": True,
+    }
+    return server, options
 
 
 def _same_file(a: str | Path, b: str | Path) -> bool:
@@ -509,7 +572,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="run a mission with the executive in the simulator and write a report",
         description="Compile the mission, run it at a fixed rate against sim2d (the "
         "mission's clear-apron scenario unless --scenario is given) and write the report "
-        "folder: trajectory.png, timeline.png, metrics.json, events.jsonl, journal.jsonl. "
+        "folder: trajectory.png, timeline.png, metrics.json, events.jsonl, journal.jsonl, "
+        "run.mcap (a recording for Foxglove; docs/recording.md). "
         "Exit 0 when the mission succeeded (completed, no collision, no geofence breach, "
         "every checkpoint within tolerance, every item inspected with a fresh image), "
         "1 when it failed, 2 on bad input, 128+N when ended by signal N (SIGINT 130, "
@@ -527,6 +591,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     dry.add_argument("--quiet", action="store_true", help="no live progress line")
     dry.add_argument(
+        "--no-record",
+        dest="record",
+        action="store_false",
+        help="do not record the run for Foxglove (default: OUT/run.mcap)",
+    )
+    dry.add_argument(
         "--servo",
         action=argparse.BooleanOptionalAction,
         default=None,
@@ -534,6 +604,21 @@ def build_parser() -> argparse.ArgumentParser:
         "the aircraft types whose end-to-end runs meet 2 cm and 0.5 deg, the A320-200 and "
         "B737-800; --servo forces it "
         "on, --no-servo off)",
+    )
+    dry.add_argument(
+        "--live",
+        metavar="[HOST:]PORT",
+        nargs="?",
+        const="127.0.0.1:8765",
+        default=None,
+        help="serve the operator's HUD (default 127.0.0.1:8765) and run at real time: "
+        "watch and drive the run from a browser (docs/hud.md)",
+    )
+    dry.add_argument(
+        "--pace",
+        type=float,
+        default=1.0,
+        help="with --live: simulated seconds per wall-clock second (default 1)",
     )
     dry.add_argument(
         "--max-time",

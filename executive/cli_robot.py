@@ -127,8 +127,11 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 def _run(args: argparse.Namespace, stop: StopRequest) -> int:
     from executive.core.files import remove_if_present
+    from executive.hud.server import HudServer
+    from executive.hud.telemetry import Telemetry
     from executive.journal import check_resumable, check_resume_pose, read_journal
-    from executive.operator import OperatorEndpoint, OperatorState
+    from executive.operator import OperatorState
+    from executive.recording import recording_path
     from executive.robotlink.link import LinkError, RobotLink
     from executive.robotrun import REPORT_FILES, NotStartedError, robot_run, write_robot_report
     from executive.runtime import WallClock
@@ -171,14 +174,26 @@ def _run(args: argparse.Namespace, stop: StopRequest) -> int:
     try:
         # the operator's reset releases the base's own bumper latch too
         operator.listeners.append(lambda c: link.request_reset() if c == "reset-estop" else None)
-        endpoint = OperatorEndpoint(
+        telemetry = Telemetry(
+            mission,
+            rate_hz=args.rate,
+            operator=operator.snapshot,
+            status=link.status,
+            ask=operator.ask,
+            withdraw=operator.withdraw,
+        )
+        endpoint = HudServer(
             operator,
             out,
             status=lambda: {"stop": stop.reason, **link.status()},
             host=robot.operator.host,
             port=robot.operator.port,
+            telemetry=telemetry,
         )
-        print(f"operator endpoint on {endpoint.host}:{endpoint.port} (secret in {out})")
+        print(
+            f"operator HUD on {endpoint.host}:{endpoint.port}: {endpoint.url}\n"
+            f"(the secret is also in {out / 'operator.secret'})"
+        )
         run = robot_run(
             mission,
             link,
@@ -193,6 +208,8 @@ def _run(args: argparse.Namespace, stop: StopRequest) -> int:
             progress_out=None if args.quiet else sys.stderr,
             servo=args.servo,
             before_start=clear_old_report,
+            record=recording_path(out) if args.record else None,  # never overwrites one
+            observers=(telemetry.on_tick,),
         )
     except NotStartedError as exc:
         print(f"walkaround: {exc}", file=sys.stderr)
@@ -205,6 +222,8 @@ def _run(args: argparse.Namespace, stop: StopRequest) -> int:
         if endpoint is not None:
             endpoint.close()
     write_robot_report(run, out)
+    if run.recording_error:
+        print(f"warning: {run.recording_error}", file=sys.stderr)
     result = run.result
     stopped = "the robot was sent a stop" if result.stop_sent else "the stop was NOT confirmed"
     print(
@@ -282,8 +301,9 @@ def add_robot_commands(sub: argparse._SubParsersAction) -> None:
         description="Compile the mission and run it on the robot the robot file wires: the "
         "drive base over CAN (DBC shipped with walkaround), lasers over SCIP 2.0, GPS over "
         "NMEA 0183, camera detections over ZeroMQ. The same tree, safety layer and journal "
-        "as a dry-run, on the wall clock. Writes metrics.json, events.jsonl, journal.jsonl "
-        "and can.blf to --out; the operator endpoint's address and secret too, while it runs.",
+        "as a dry-run, on the wall clock. Writes metrics.json, events.jsonl, journal.jsonl, "
+        "can.blf and run.mcap (for Foxglove) to --out; the operator endpoint's address and "
+        "secret too, while it runs.",
     )
     run.add_argument("mission", type=Path, metavar="MISSION", help="mission XML")
     run.add_argument("--robot", type=Path, required=True, help="robot XML (the wires)")
@@ -291,6 +311,12 @@ def add_robot_commands(sub: argparse._SubParsersAction) -> None:
     run.add_argument("--rate", type=float, default=50.0, help="executive rate (Hz)")
     run.add_argument("--resume", action="store_true", help="continue OUT/journal.jsonl")
     run.add_argument("--quiet", action="store_true", help="no live progress line")
+    run.add_argument(
+        "--no-record",
+        dest="record",
+        action="store_false",
+        help="do not record the run for Foxglove (default: OUT/run.mcap, run-2.mcap, ...)",
+    )
     run.add_argument("--max-time", type=float, default=None, metavar="S", help="stop after S s")
     run.add_argument("--max-missed-deadlines", type=int, default=10, metavar="N")
     run.add_argument(

@@ -5,7 +5,11 @@ The tree::
     Parallel "walkaround"
     |-- Sequence "sensing"              localise, obstacles, features (always SUCCESS)
     `-- Selector "mode"
-        |-- GuardedBranch "collaborative"  [operator takes over?] -> operator control
+        |-- GuardedBranch "collaborative"  [operator takes over?] -> GuardSelector "operator":
+        |                                    (the joystick's branch goes here)
+        |                                    [operator lost?] -> hold: operator lost (asks)
+        |                                    [follow requested?] -> follow operator
+        |                                    operator control (hold still, default)
         `-- Sequence "mission" (memory)
             |-- start mission
             |-- Sequence "approach"      navigate(waypoint)... navigate(P)
@@ -19,7 +23,10 @@ The tree::
                                   go to goal (default)]
 
 The operator's take-over pauses the mission; the hand-back resumes it where it was
-(ARCHITECTURE §5). The mission's memory sequences are :class:`ResumableSequence`: py_trees
+(ARCHITECTURE §5). While they have the robot it is in the thesis's collaborative mode
+(seed 000 Table 2.3, figure 2.21; docs/collaborative-mode.md): it follows the person they
+designate (:mod:`behaviours.controllers.follow`), stops and asks when that person is lost,
+and otherwise holds still. The mission's memory sequences are :class:`ResumableSequence`: py_trees
 restarts a memory sequence that a higher-priority branch has stopped, which would start
 the mission again from ``start mission`` (empty progress, every checkpoint driven again).
 A resumable one remembers the child that was running and resumes there; a checkpoint
@@ -60,7 +67,15 @@ from behaviours.controllers.avoidance import (
     DodgeObstacle,
 )
 from behaviours.controllers.fallback import FollowPlannedPath
+from behaviours.controllers.follow import (
+    AskOperator,
+    FollowOperator,
+    FollowRequested,
+    FollowSession,
+    OperatorLost,
+)
 from behaviours.controllers.inspection import InspectItems, SetProgress, StartMission
+from behaviours.controllers.joystick import JoystickActive, JoystickControl
 from behaviours.controllers.motion import (
     CorrectCameraAngle,
     Dwell,
@@ -87,6 +102,7 @@ from behaviours.guards.conditions import (
     PoseNotGoodEnough,
     Reached,
 )
+from behaviours.guards.operator_help import AskWhenTrapped, SkipCheckpoint, SkipRequests
 from behaviours.keys import COMMAND, EXTERNAL_KEYS, MissionProgress
 from behaviours.laws.augmented_image import MIN_REAL_POINTS
 from behaviours.laws.go_to_goal import GoToGoalParams
@@ -129,6 +145,11 @@ CAMERA_ANGLE_THRESHOLD = math.radians(0.25)
 """Correct camera angle acts when the measured pan is this far from the pan the
 checkpoint's pose needs (it settles to a fifth of it)."""
 
+JOYSTICK_SPEED = 0.5
+JOYSTICK_OMEGA = 0.6
+"""The operator's joystick drives at most this fast (m/s, rad/s): walking pace beside the
+robot; the safety layer's slowdown and e-stop apply as to every command."""
+
 SERVO_VERIFIED: frozenset[str] = frozenset({"A320-200", "B737-800"})
 """Aircraft types whose servo checkpoints are reached by visual servoing by default
 (``CompileOptions.servo`` None): those where the sim2d end-to-end runs meet 2 cm and
@@ -149,9 +170,11 @@ class GuardSelector(py_trees.composites.Selector):
 
 
 class GuardedBranch(py_trees.composites.Sequence):
-    """[guard] -> controller: the controller runs only while its guard holds."""
+    """[guard] -> controller: the controller runs only while its guard holds. The
+    controller may be a :class:`GuardSelector` of guarded controllers (the collaborative
+    mode's)."""
 
-    def __init__(self, name: str, guard: Guard, controller: Controller) -> None:
+    def __init__(self, name: str, guard: Guard, controller: Controller | GuardSelector) -> None:
         super().__init__(name, memory=False, children=[guard, controller])
 
 
@@ -257,6 +280,10 @@ class CompileOptions:
     """Builds the avoidance controller (default :class:`AvoidObstacle`, the spiral)."""
     register_aircraft: bool = True
     """Register the aircraft from the laser returns (False: trust the nominal placement)."""
+    ask_operator: bool = False
+    """An operator is at hand (the HUD of a live dry-run or of the robot, issue 15): a
+    checkpoint's trapped navigation asks them (wait, take over, skip) instead of failing
+    the mission (:mod:`behaviours.guards.operator_help`)."""
     servo: bool | None = None
     """Reach checkpoints with a servo target by visual servoing (issue 13). None: on the
     aircraft types of :data:`SERVO_VERIFIED`; True: everywhere; False: never (metric)."""
@@ -289,6 +316,7 @@ class _Builder:
         self.goto_nodes: list[GoToGoalController] = []
         self.avoidance_policies: list[AvoidancePolicy] = []
         self.servo_sessions: list[ServoSession] = []
+        self.skips = SkipRequests()
         nav = mission.navigation
         platform = mission.platform
         self.checkpoint_tolerance = (
@@ -333,10 +361,13 @@ class _Builder:
         tolerance: tuple[float, float | None],
         servo: ServoSession | None = None,
         aim: ServoSession | None = None,
+        checkpoint: str | None = None,
     ) -> py_trees.behaviour.Behaviour:
         """One navigation: its guards, then metric go-to-goal. ``servo``: the checkpoint's
         visual-servoing branches; ``aim`` (or ``servo``): go-to-goal keeps the servo units
-        aimed at that session's target (:class:`AimedGoToGoal`)."""
+        aimed at that session's target (:class:`AimedGoToGoal`). ``checkpoint``: the
+        navigation leads to that checkpoint, whose trap asks the operator when one is at
+        hand (:attr:`CompileOptions.ask_operator`)."""
         safety = self.mission.safety
         params = dataclasses.replace(
             self.params,
@@ -385,8 +416,17 @@ class _Builder:
         return py_trees.composites.Sequence(
             f"navigate {label}",
             memory=False,
-            children=[NotTrapped(goal, self.options.trapped_after), guards],
+            children=[self.trap(label, goal, checkpoint), guards],
         )
+
+    def trap(self, label: str, goal: Goal, checkpoint: str | None) -> py_trees.behaviour.Behaviour:
+        """The navigation's trap guard; with an operator at hand, on the way to a
+        checkpoint, a trap asks them rather than failing."""
+        trap = NotTrapped(goal, self.options.trapped_after)
+        if checkpoint is None or not self.options.ask_operator:
+            return trap
+        ask = AskWhenTrapped(trap, checkpoint, self.skips, name=f"ask operator {label}")
+        return py_trees.composites.Selector(f"trapped {label}?", memory=False, children=[trap, ask])
 
     def avoidance(self, label: str, goal: Goal) -> list[py_trees.behaviour.Behaviour]:
         """The obstacle-avoidance branches of a navigation (ARCHITECTURE §5), if enabled:
@@ -468,7 +508,9 @@ class _Builder:
         ]
         for k, (vx, vy) in enumerate(cp.via, start=1):
             via = Goal(Pose2(vx, vy, 0.0), Frame.AIRCRAFT, self.placement)
-            children.append(self.navigate(f"{cp.id} via {k}", via, False, (0.3, None)))
+            children.append(
+                self.navigate(f"{cp.id} via {k}", via, False, (0.3, None), checkpoint=cp.id)
+            )
         servo: ServoSession | None = None
         if cp.camera is not None and cp.target is not None:
             method = (cp.servo or m.aircraft.features[cp.target].servo).value
@@ -502,6 +544,7 @@ class _Builder:
                             True,
                             SERVO_START_TOLERANCE,
                             aim=servo,
+                            checkpoint=cp.id,
                         )
                     )
                 else:
@@ -543,6 +586,7 @@ class _Builder:
                 self.checkpoint_tolerance,
                 servo=drives,
                 aim=servo,
+                checkpoint=cp.id,
             )
         )
         if servo is not None and not servo.drivable:
@@ -585,7 +629,14 @@ class _Builder:
         if cp.dwell > 0:
             children.append(Dwell(cp.dwell, name=f"dwell {cp.id}"))
         children.append(SetProgress("inspection", checkpoint=cp.id, done=True))
-        return ResumableSequence(f"checkpoint {cp.id}", children, rewind_to=reach)
+        visit = ResumableSequence(f"checkpoint {cp.id}", children, rewind_to=reach)
+        if not self.options.ask_operator:
+            return visit
+        return py_trees.composites.Selector(
+            f"checkpoint {cp.id} or skip",
+            memory=False,
+            children=[visit, SkipCheckpoint(cp.id, self.skips)],
+        )
 
     def inspection(self) -> py_trees.behaviour.Behaviour:
         done = set(self.options.resume.completed) if self.options.resume else set()
@@ -612,6 +663,36 @@ class _Builder:
         )
         return ResumableSequence("return", children)
 
+    def collaborative(self) -> GuardedBranch:
+        """The collaborative mode (seed 000 Table 2.3, figure 2.21): while the operator has
+        the robot, drive it with their joystick while its stream keeps coming (issue 15;
+        within :data:`JOYSTICK_SPEED` and :data:`JOYSTICK_OMEGA`), else follow the person
+        they designate (laser tracks; the trail keeps the robot where the person walked,
+        the safety layer filters every command), stop and ask when that person is lost,
+        else hold still. An abort holds still for good. No e-stop branch: the safety
+        layer's e-stop latch (r_ES, bumpers, the operator's e-stop) stops every command,
+        and the follower's braking cap keeps its own commands outside r_ES."""
+        m = self.mission
+        session = FollowSession(m.platform, m.safety.r_es, self.period)
+        control = GuardSelector(
+            "operator",
+            [
+                # a stick in the hand wins over the follower; its stream stale: stop
+                GuardedBranch(
+                    "joystick",
+                    JoystickActive(),
+                    JoystickControl(
+                        min(JOYSTICK_SPEED, m.platform.max_speed),
+                        min(JOYSTICK_OMEGA, m.platform.max_angular_speed),
+                    ),
+                ),
+                GuardedBranch("operator lost", OperatorLost(session), AskOperator(session)),
+                GuardedBranch("follow", FollowRequested(session), FollowOperator(session)),
+                HoldStill("operator control"),
+            ],
+        )
+        return GuardedBranch("collaborative", OperatorTakeOver(), control)
+
     def build(self) -> py_trees.behaviour.Behaviour:
         m = self.mission
         start = self.options.start or m.airport.station
@@ -635,7 +716,7 @@ class _Builder:
         mode = py_trees.composites.Selector(
             "mode",
             memory=False,
-            children=[GuardedBranch("collaborative", OperatorTakeOver(), HoldStill()), mission],
+            children=[self.collaborative(), mission],
         )
         policy = py_trees.common.ParallelPolicy.SuccessOnSelected([mode], synchronise=False)
         return py_trees.composites.Parallel("walkaround", policy, children=[sensing, mode])
@@ -694,7 +775,7 @@ def check_tree(root: py_trees.behaviour.Behaviour) -> list[str]:
             if (
                 len(kids) != 2
                 or not isinstance(kids[0], Guard)
-                or not isinstance(kids[1], Controller)
+                or not isinstance(kids[1], Controller | GuardSelector)
             ):
                 problems.append(f"'{node.name}' must be [guard] -> controller")
         parent = node.parent

@@ -51,11 +51,13 @@ from executive.journal import (
     MissionBinding,
     read_journal,
 )
+from executive.recording import Recorder
 from executive.runtime import (
     DEFAULT_MAX_MISSED_DEADLINES,
     RunResult,
     Runtime,
     StopRequest,
+    TickHook,
 )
 from executive.safety import (
     ESTOP_LATCHED,
@@ -94,6 +96,32 @@ class SimClock:
         machine busy with other work delays the simulation, not the robot; a slow
         executive still misses its deadlines (on the robot, the wall clock decides)."""
         return time.thread_time()
+
+
+class PacedSimClock(SimClock):
+    """Simulated time kept at ``pace`` times the wall clock (a live dry-run an operator
+    watches and drives); a simulation slower than that runs as fast as it can."""
+
+    def __init__(self, robot: SimRobot, pace: float) -> None:
+        super().__init__(robot)
+        if not pace > 0.0:
+            raise ValueError(f"pace must be > 0, got {pace}")
+        self.pace = pace
+        self._origin: tuple[float, float] | None = None
+
+    def wait(self, until: float) -> None:
+        super().wait(until)
+        if self._origin is None:
+            self._origin = (time.monotonic(), self.robot.time)
+        wall0, sim0 = self._origin
+        ahead = wall0 + (self.robot.time - sim0) / self.pace - time.monotonic()
+        if ahead > 0.0:
+            time.sleep(ahead)
+
+    @staticmethod
+    def tick_timer() -> float:
+        """The wall clock: at real time the tick's deadline is the robot's."""
+        return time.perf_counter()
 
 
 @dataclass
@@ -252,6 +280,10 @@ class DryRun:
     servo: dict[str, dict[str, object]] = field(default_factory=dict)
     """Per servo checkpoint: its target, the time servoed by mode and the time on an
     augmented image with reconstructed points (issue 13), from the ServoStatus key."""
+    recording: Path | None = None
+    """The run's MCAP recording for Foxglove (issue 15), when one was asked for."""
+    recording_error: str | None = None
+    """Why the recording stopped early (the run went on), or None."""
 
     @property
     def succeeded(self) -> bool:
@@ -526,6 +558,17 @@ class _Watcher:
     def _judge_checkpoint(self, cp_id: str, t: float, progress: MissionProgress) -> None:
         mission = self.scenario.mission
         cp = self._checkpoints[cp_id]
+        if cp_id in progress.skipped:  # the operator skipped it (trapped): not reached
+            self.outcomes[cp_id] = CheckpointOutcome(id=cp_id, reached=False, time=round(t, 2))
+            if self.journal is not None:
+                self.journal.write(
+                    {
+                        "event": "checkpoint-truth",
+                        "checkpoint": cp_id,
+                        **dataclasses.asdict(self.outcomes[cp_id]),
+                    }
+                )
+            return
         goal = self.true.pose_to_airport(cp.pose)
         true = self.robot.world.robot_pose
         results = [r for r in progress.results if r.checkpoint == cp_id]
@@ -598,6 +641,11 @@ def dry_run(
     max_missed_deadlines: int | None = DEFAULT_MAX_MISSED_DEADLINES,
     before_start: Callable[[], None] | None = None,
     servo: bool | None = None,
+    ask_operator: bool = False,
+    trapped_after: float | None = None,
+    record: Path | None = None,
+    observers: Sequence[TickHook] = (),
+    pace: float | None = None,
 ) -> DryRun:
     """Run the scenario's mission with the executive in sim2d and judge it.
 
@@ -610,6 +658,14 @@ def dry_run(
     report there, so a run that cannot start destroys nothing.
     ``servo`` reaches the checkpoints with a servo target by visual servoing (issue 13;
     None: the compiler's default, :data:`executive.compiler.SERVO_VERIFIED`).
+    ``ask_operator``: an operator answers the run's questions (a trapped checkpoint:
+    wait, take over or skip; :attr:`executive.compiler.CompileOptions.ask_operator`);
+    ``trapped_after`` overrides the trap period (s).
+    ``observers`` are called after every tick like the runtime's own hook (the live
+    HUD's telemetry); ``pace`` runs the simulation at that multiple of real time (the
+    live dry-run: 1) instead of as fast as it can.
+    ``record`` names an MCAP file to record the run to for Foxglove (issue 15,
+    :mod:`executive.recording`; overwritten), opened with the journal.
     """
     mission = scenario.mission
     state: JournalState | None = None
@@ -631,6 +687,8 @@ def dry_run(
         avoider=avoider,
         avoidance_params=avoidance_params,
         servo=servo,
+        ask_operator=ask_operator,
+        **({} if trapped_after is None else {"trapped_after": trapped_after}),
     )
     compiled = compile_mission(mission, options)
     safety = SafetyLayer(
@@ -658,16 +716,31 @@ def dry_run(
     if resumed is not None:
         watcher.completed_seen = resumed.completed
     show = _Progress(progress_out, len(mission.checkpoints))
+    recorder, recording_error = None, None
+    if record is not None:
+        try:
+            recorder = Recorder.open(
+                record,
+                mission,
+                placement=compiled.placement,
+                metadata={"scenario": scenario.id, "scenario_file": scenario.source},
+            )
+        except OSError as exc:  # no recording is no reason not to run
+            recording_error = f"cannot record to {record}: {exc.strerror or exc}"
 
     def on_tick(t: float, frame: SensorFrame, sent: VelocityCommand, rt: Runtime) -> None:
         watcher(t, frame, sent, rt)
         show(t, rt)
+        if recorder is not None:
+            recorder.on_tick(t, frame, sent, rt)
+        for observer in observers:
+            observer(t, frame, sent, rt)
 
     wire = _CommandLog(sim)
     runtime = Runtime(
         compiled,
         wire,
-        SimClock(sim),
+        SimClock(sim) if pace is None else PacedSimClock(sim, pace),
         safety,
         rate_hz=rate_hz,
         journal=journal,
@@ -679,8 +752,12 @@ def dry_run(
     wall0 = time.perf_counter()
     try:
         result = runtime.run(max_time if max_time is not None else scenario.duration)
+        if recorder is not None:
+            recorder.close(runtime, result)
     finally:
         show.close()
+        if recorder is not None:
+            recorder.close(runtime)  # when the run raised; else already closed
     wall = time.perf_counter() - wall0
     journal_error = None
     if journal is not None:
@@ -722,6 +799,8 @@ def dry_run(
         journal_error=journal_error,
         stale_sensors=safety.stale_intervals(),
         servo=watcher.servo,
+        recording=record if recorder is not None else None,
+        recording_error=recorder.error if recorder is not None else recording_error,
     )
     run.causes = judge(run)
     return run

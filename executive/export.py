@@ -354,9 +354,9 @@ def render(root: Behaviour, path: Path, *, dpi: float = 100.0) -> Path:
     """Draw the tree to ``path``, a ``.png`` or ``.svg`` (no graphviz needed).
 
     Boxes sit on :func:`layout`'s grid, 1.25 in per leaf and 1 in per level, so a big tree
-    (the A320 mission with its servo branches: ~1500 behaviours, ~990 leaves) makes a wide figure at a constant,
-    readable text size; a PNG's resolution is lowered only where it would exceed Agg's
-    65536-pixel limit. SVG text is kept as text (searchable).
+    (the A320 mission with its servo branches: ~1500 behaviours, ~990 leaves) makes a
+    wide figure at a constant, readable text size; a PNG's resolution is lowered only
+    where it would exceed Agg's 65536-pixel limit. SVG text is kept as text (searchable).
     """
     path = Path(path)
     suffix = path.suffix.lower()

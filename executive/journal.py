@@ -219,6 +219,8 @@ class Journal:
                 record["pose_a"] = [round(v, 6) for v in pose]
             if sigma_f is not None and math.isfinite(sigma_f):
                 record["sigma_f"] = round(sigma_f, 4)
+            if cp in progress.skipped:
+                record["skipped"] = True  # by the operator, trapped: not inspected
             self.write(record)
         if progress.phase != last.phase:
             self.write({"t": round(t, 3), "event": "phase", "phase": progress.phase})
@@ -370,6 +372,7 @@ def read_journal(path: Path) -> JournalState:
 
     binding: MissionBinding | None = None
     completed: list[str] = []
+    skipped: list[str] = []
     results: list[ItemResult] = []
     truth: dict[str, dict[str, object]] = {}
     phase, checkpoint = "approach", None
@@ -432,6 +435,8 @@ def read_journal(path: Path) -> JournalState:
                     "completed in the mission's order",
                 )
             completed.append(cp)
+            if record.get("skipped") is True:
+                skipped.append(cp)
             checkpoint = cp
             if "pose_a" in record:
                 pose = tuple(float(v) for v in record["pose_a"])
@@ -454,7 +459,11 @@ def read_journal(path: Path) -> JournalState:
     # Items of a checkpoint that was not finished are inspected again on resume.
     kept = tuple(r for r in results if r.checkpoint in completed)
     progress = MissionProgress(
-        phase=phase, checkpoint=checkpoint, completed=tuple(completed), results=kept
+        phase=phase,
+        checkpoint=checkpoint,
+        completed=tuple(completed),
+        results=kept,
+        skipped=tuple(skipped),
     )
     return JournalState(
         binding=binding,

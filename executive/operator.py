@@ -1,39 +1,72 @@
-"""The operator endpoint of a running executive, and its command-line client.
+"""The operator's side of a running executive: what they ask for, and the command-line
+client of the run's endpoint.
 
-One local endpoint per run (ARCHITECTURE §8): HTTP with JSON bodies, on the loopback
-unless the robot file says otherwise. Every request needs the run's secret, generated
-per run (``secrets.token_urlsafe``) and written next to the report with owner-only
-permissions (``operator.secret``, mode 0600), with the endpoint's address in
-``operator.json``; a request without it, or with another, is refused (401) and counted.
-``walkaround operator COMMAND --run DIR`` and the web HUD are its clients.
+One endpoint per run (ARCHITECTURE §8), served by the web HUD (:mod:`executive.hud`):
+HTTP with JSON bodies and a WebSocket, on the loopback unless the robot file says
+otherwise. Every request needs the run's secret, generated per run
+(``secrets.token_urlsafe``) and written next to the report with owner-only permissions
+(``operator.secret``, mode 0600), with the endpoint's address in ``operator.json``; a
+request without it, or with another, is refused (401), counted and logged.
+``walkaround operator COMMAND --run DIR`` and the HUD are its clients.
 
 Commands: ``pause`` (the robot holds still, the mission keeps its place), ``resume``,
-``take-over`` (the operator has the robot; the mission pauses), ``hand-back``,
-``reset-estop`` (release a latched e-stop or bumper once the zone is clear; a one-shot
-request), ``abort`` (a safe stop for good; the run ends ``aborted`` with its report).
-``GET /status`` answers what the run is doing.
+``take-over`` (the operator has the robot: the joystick drives it, or it follows the
+person they designate; the mission pauses), ``hand-back``, ``estop`` (the operator's
+e-stop: latched until ``reset-estop``), ``reset-estop`` (release a latched e-stop or
+bumper once the zone is clear; a one-shot request), ``abort`` (a safe stop for good; the
+run ends ``aborted`` with its report); with parameters: ``joystick`` (``v``, ``omega``:
+a dead-man stream, stale after :data:`DEADMAN_S`), ``follow`` (``x``, ``y`` in A and
+optional ``distance``: follow the person there), ``answer`` (``choice``: the answer to
+the question the run asked, e.g. when trapped). ``GET /status`` answers what the run is
+doing.
 """
 
 from __future__ import annotations
 
-import hmac
 import json
+import math
 import os
-import secrets
 import threading
-from collections.abc import Callable
+import time
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from http import HTTPStatus
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
-from executive.core.records import OperatorRequests
+from executive.core.records import FollowRequest, JoystickCommand, OperatorRequests
 
-COMMANDS = ("pause", "resume", "take-over", "hand-back", "reset-estop", "abort")
+COMMANDS = (
+    "pause",
+    "resume",
+    "take-over",
+    "hand-back",
+    "estop",
+    "reset-estop",
+    "abort",
+    "joystick",
+    "follow",
+    "answer",
+)
 MAX_BODY = 4096
 """Bytes of a request body: a command is a few tens; anything longer is refused."""
 ENDPOINT_FILE = "operator.json"
 SECRET_FILE = "operator.secret"
+DEADMAN_S = 0.3
+"""A joystick command older than this (wall clock) no longer drives: the tablet's stream
+must keep coming (the HUD sends 10 per second while the stick is held)."""
+JOYSTICK_LIMITS = (1.0, 1.0)
+"""The joystick's speed (m/s) and turn rate (rad/s) accepted at most; the tree and the
+safety layer limit them further to the mission's and the platform's."""
+
+
+@dataclass(frozen=True)
+class Question:
+    """A question the run asks the operator (the thesis's "operator asked for help")."""
+
+    id: int
+    text: str
+    choices: tuple[str, ...]
+    asked_at: float
 
 
 @dataclass
@@ -45,16 +78,27 @@ class OperatorState:
     taken_over: bool = False
     aborted: bool = False
     _reset_pending: bool = False
+    _estop_pending: bool = False
+    _answer: str | None = None
+    _joystick: tuple[float, float, float] | None = None  # (wall time, v, omega)
+    _follow: tuple[float, float, float] | None = None  # (x, y, distance) in A
+    _follow_new: bool = False
+    question: Question | None = None
+    _questions: int = 0
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
     log: list[tuple[str, bool]] = field(default_factory=list)
     """Every command received, with whether it was accepted."""
     listeners: list[Callable[[str], None]] = field(default_factory=list)
     """Called with each accepted command (the robot link's reset of the base's latch)."""
+    wall: Callable[[], float] = time.monotonic
 
-    def apply(self, command: str) -> str:
-        """Apply ``command``; the answer for the operator. Raises ValueError if unknown."""
+    def apply(self, command: str, params: Mapping[str, object] | None = None) -> str:
+        """Apply ``command`` with its ``params``; the answer for the operator. Raises
+        ValueError if unknown or its parameters are not valid."""
         if command not in COMMANDS:
             raise ValueError(f"unknown command '{command}' (one of {', '.join(COMMANDS)})")
+        params = params or {}
+        parsed = _parse(command, params)
         with self._lock:
             if self.aborted and command != "abort":
                 self.log.append((command, False))
@@ -67,74 +111,123 @@ class OperatorState:
                 self.taken_over = True
             elif command == "hand-back":
                 self.taken_over = False
+                self._joystick = None
+                self._follow = None
+            elif command == "estop":
+                self._estop_pending = True
             elif command == "reset-estop":
                 self._reset_pending = True
+            elif command == "joystick":
+                v, omega = parsed
+                self._joystick = (self.wall(), v, omega)
+            elif command == "follow":
+                self._follow = parsed
+                self._follow_new = True
+                self.taken_over = True
+            elif command == "answer":
+                (choice,) = parsed
+                question = self.question
+                if question is None:
+                    self.log.append((command, False))
+                    return "no question is pending"
+                if choice not in question.choices:
+                    self.log.append((command, False))
+                    return f"'{choice}' is not one of {', '.join(question.choices)}"
+                self._answer = choice
+                self.question = None
+                if choice == "take-over":
+                    self.taken_over = True
             else:
                 self.aborted = True
-            self.log.append((command, True))
+            if command != "joystick":  # a stream of 10 a second: not a log line each
+                self.log.append((command, True))
         for listener in self.listeners:
             listener(command)
         return f"{command}: accepted"
 
+    def ask(self, text: str, choices: tuple[str, ...]) -> Question:
+        """Post a question for the operator (replaces an unanswered one)."""
+        with self._lock:
+            self._questions += 1
+            self.question = Question(self._questions, text, choices, self.wall())
+            self._answer = None
+            return self.question
+
+    def withdraw(self) -> None:
+        """The question is no longer asked (the run went on without an answer)."""
+        with self._lock:
+            self.question = None
+
+    def snapshot(self) -> dict[str, object]:
+        """The operator side of the run, for the HUD."""
+        with self._lock:
+            q = self.question
+            return {
+                "paused": self.paused,
+                "taken_over": self.taken_over,
+                "aborted": self.aborted,
+                "following": self._follow is not None,
+                "joystick": self._joystick is not None
+                and self.wall() - self._joystick[0] <= DEADMAN_S,
+                "question": None
+                if q is None
+                else {"id": q.id, "text": q.text, "choices": list(q.choices)},
+            }
+
     def __call__(self, now: float) -> OperatorRequests:
         with self._lock:
             reset, self._reset_pending = self._reset_pending, False
+            estop, self._estop_pending = self._estop_pending, False
+            answer, self._answer = self._answer, None
+            joystick = None
+            if self._joystick is not None and self.wall() - self._joystick[0] <= DEADMAN_S:
+                joystick = JoystickCommand(now, self._joystick[1], self._joystick[2])
+            follow = None
+            if self._follow is not None:
+                x, y, distance = self._follow
+                follow = FollowRequest(now, x, y, distance)
             return OperatorRequests(
                 reset_estop=reset,
                 take_over=self.paused or self.taken_over,
                 abort=self.aborted,
+                estop=estop,
+                joystick=joystick,
+                follow=follow,
+                answer=answer,
             )
 
 
-class OperatorEndpoint:
-    """The HTTP endpoint of one run: serves ``state`` with ``status()`` for GET /status.
+def _number(params: Mapping[str, object], key: str, low: float, high: float) -> float:
+    value = params.get(key)
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ValueError(f"'{key}' must be a number")
+    value = float(value)
+    if not (math.isfinite(value) and low <= value <= high):
+        raise ValueError(f"'{key}' must be within [{low:g}, {high:g}], got {value:g}")
+    return value
 
-    ``folder`` receives ``operator.json`` (host, port, pid) and ``operator.secret``.
-    """
 
-    def __init__(
-        self,
-        state: OperatorState,
-        folder: Path,
-        status: Callable[[], dict[str, object]],
-        host: str = "127.0.0.1",
-        port: int = 0,
-    ) -> None:
-        self.state = state
-        self.status = status
-        self.secret = secrets.token_urlsafe(32)
-        self.refused = 0
-        self._server = ThreadingHTTPServer((host, port), _handler_for(self))
-        self._server.daemon_threads = True
-        self.host, self.port = self._server.server_address[:2]
-        folder.mkdir(parents=True, exist_ok=True)
-        self._files = (folder / SECRET_FILE, folder / ENDPOINT_FILE)
-        _write_private(self._files[0], self.secret + "\n")
-        _write_private(
-            self._files[1],
-            json.dumps({"host": self.host, "port": self.port, "pid": os.getpid()}) + "\n",
+def _parse(command: str, params: Mapping[str, object]) -> tuple:
+    """The parameters of ``command``, checked (ValueError says what is wrong)."""
+    if command == "joystick":
+        v_max, w_max = JOYSTICK_LIMITS
+        return (_number(params, "v", -v_max, v_max), _number(params, "omega", -w_max, w_max))
+    if command == "follow":
+        distance = params.get("distance", 1.5)
+        return (
+            _number(params, "x", -1e4, 1e4),
+            _number(params, "y", -1e4, 1e4),
+            _number({"distance": distance}, "distance", 0.5, 10.0),
         )
-        self._thread = threading.Thread(
-            target=self._server.serve_forever, name="operator endpoint", daemon=True
-        )
-        self._thread.start()
-
-    def authorised(self, header: str | None) -> bool:
-        token = (header or "").removeprefix("Bearer ").strip()
-        ok = hmac.compare_digest(token.encode(), self.secret.encode())
-        if not ok:
-            self.refused += 1
-        return ok
-
-    def close(self) -> None:
-        """Stop serving and remove the secret and address: the run is over."""
-        self._server.shutdown()
-        self._server.server_close()
-        for path in self._files:
-            path.unlink(missing_ok=True)
+    if command == "answer":
+        choice = params.get("choice")
+        if not isinstance(choice, str) or not choice:
+            raise ValueError("'choice' must be a non-empty string")
+        return (choice,)
+    return ()
 
 
-def _write_private(path: Path, text: str) -> None:
+def write_private(path: Path, text: str) -> None:
     """Write ``text`` to a new file readable by its owner only (never through a link)."""
     path.unlink(missing_ok=True)
     fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o600)
@@ -142,66 +235,19 @@ def _write_private(path: Path, text: str) -> None:
         f.write(text)
 
 
-def _handler_for(endpoint: OperatorEndpoint) -> type[BaseHTTPRequestHandler]:
-    class Handler(BaseHTTPRequestHandler):
-        server_version = "walkaround-operator/1"
-
-        def log_message(self, format: str, *args: object) -> None:
-            """Quiet: the run's own log says what the operator did."""
-
-        def _answer(self, status: HTTPStatus, body: dict[str, object]) -> None:
-            data = json.dumps(body).encode()
-            self.send_response(status)
-            self.send_header("Content-Type", "application/json")
-            self.send_header("Content-Length", str(len(data)))
-            self.end_headers()
-            self.wfile.write(data)
-
-        def _allowed(self) -> bool:
-            if endpoint.authorised(self.headers.get("Authorization")):
-                return True
-            self._answer(HTTPStatus.UNAUTHORIZED, {"error": "this run's secret is required"})
-            return False
-
-        def do_GET(self) -> None:
-            if not self._allowed():
-                return
-            if self.path != "/status":
-                self._answer(HTTPStatus.NOT_FOUND, {"error": f"no {self.path}"})
-                return
-            self._answer(HTTPStatus.OK, endpoint.status())
-
-        def do_POST(self) -> None:
-            if not self._allowed():
-                return
-            if self.path != "/command":
-                self._answer(HTTPStatus.NOT_FOUND, {"error": f"no {self.path}"})
-                return
-            try:
-                length = int(self.headers.get("Content-Length") or 0)
-            except ValueError:
-                length = -1
-            if not 0 < length <= MAX_BODY:
-                self._answer(HTTPStatus.BAD_REQUEST, {"error": "a JSON body of at most 4 KiB"})
-                return
-            try:
-                body = json.loads(self.rfile.read(length))
-                answer = endpoint.state.apply(str(body["command"]))
-            except (ValueError, KeyError, TypeError) as exc:
-                self._answer(HTTPStatus.BAD_REQUEST, {"error": str(exc)})
-                return
-            self._answer(HTTPStatus.OK, {"ok": True, "answer": answer})
-
-    return Handler
-
-
 # -- the client ----------------------------------------------------------------------------------
 class OperatorError(Exception):
     """The command could not be delivered or was refused; the message says why."""
 
 
-def send_command(run_folder: Path, command: str, timeout: float = 2.0) -> str:
-    """Send ``command`` to the run whose report folder is ``run_folder``."""
+def send_command(
+    run_folder: Path,
+    command: str,
+    timeout: float = 2.0,
+    params: Mapping[str, object] | None = None,
+) -> str:
+    """Send ``command`` (with its ``params``) to the run whose report folder is
+    ``run_folder``."""
     import http.client
 
     try:
@@ -217,7 +263,7 @@ def send_command(run_folder: Path, command: str, timeout: float = 2.0) -> str:
             conn.request(
                 "POST",
                 "/command",
-                body=json.dumps({"command": command}),
+                body=json.dumps({**(params or {}), "command": command}),
                 headers={"Authorization": f"Bearer {secret}", "Content-Type": "application/json"},
             )
         response = conn.getresponse()

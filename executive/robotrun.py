@@ -15,7 +15,7 @@ from __future__ import annotations
 import gc
 import json
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TextIO
@@ -28,12 +28,14 @@ from executive.core.model import Mission
 from executive.core.records import PoseEstimate, SensorFrame, VelocityCommand
 from executive.journal import Journal, JournalState, MissionBinding
 from executive.operator import OperatorState
+from executive.recording import Recorder, chain
 from executive.runtime import (
     DEFAULT_MAX_MISSED_DEADLINES,
     Clock,
     RunResult,
     Runtime,
     StopRequest,
+    TickHook,
     WallClock,
 )
 from executive.safety import SafetyLayer
@@ -64,6 +66,10 @@ class RobotRun:
     link: dict[str, object]
     resumed_from: tuple[str, ...] = ()
     wall_start: float = 0.0
+    recording: Path | None = None
+    """The run's MCAP recording for Foxglove (issue 15), when one was asked for."""
+    recording_error: str | None = None
+    """Why the recording stopped early or never started (the run went on), or None."""
 
     @property
     def succeeded(self) -> bool:
@@ -131,6 +137,8 @@ def robot_run(
     progress_out: TextIO | None = None,
     servo: bool | None = None,
     before_start: Callable[[], None] | None = None,
+    record: Path | None = None,
+    observers: Sequence[TickHook] = (),
 ) -> RobotRun:
     """Run ``mission`` on the robot behind ``link`` (a RobotInterface) on the wall clock.
 
@@ -140,7 +148,10 @@ def robot_run(
     brought up (its ``wait_ready``, if it has one): from then on a tick feeds the base's
     watchdog every period. Then ``before_start`` (the CLI clears the old report) and the
     journal. Raises what ``wait_ready`` raises when the base is not ready, and
-    :class:`NotStartedError` when ``stop`` was set meanwhile.
+    :class:`NotStartedError` when ``stop`` was set meanwhile. ``record`` names an MCAP
+    file to record the run to for Foxglove; ``observers`` are called after every tick (the
+    HUD's telemetry) (:mod:`executive.recording`; message times are
+    Unix times), opened with the journal; a recording that fails never stops the robot.
     """
     stop = stop if stop is not None else StopRequest()
     clock = clock or WallClock()
@@ -149,7 +160,13 @@ def robot_run(
     start = Pose2(*where) if where else None  # where the robot stood when it stopped
     compiled = compile_mission(
         mission,
-        CompileOptions(rate_hz=rate_hz, start=start, resume=progress, servo=servo),
+        CompileOptions(
+            rate_hz=rate_hz,
+            start=start,
+            resume=progress,
+            servo=servo,
+            ask_operator=operator is not None,
+        ),
     )
     safety = SafetyLayer(
         mission, compiled.placement, 1.0 / rate_hz, geofence_margin=mission.safety.geofence_margin
@@ -176,6 +193,14 @@ def robot_run(
             if progress is not None:
                 journal.resume_from(progress)
                 journal.write({"event": "resume", "t": round(clock.now(), 3)})
+        recorder, recording_error = None, None
+        if record is not None:
+            try:
+                recorder = Recorder.open(
+                    record, mission, placement=compiled.placement, epoch=time.time() - clock.now()
+                )
+            except OSError as exc:
+                recording_error = f"cannot record to {record}: {exc.strerror or exc}"
         runtime = Runtime(
             compiled,
             link,  # type: ignore[arg-type]
@@ -184,15 +209,19 @@ def robot_run(
             rate_hz=rate_hz,
             journal=journal,
             operator=operator,
-            on_tick=watcher,
+            on_tick=chain(watcher, recorder.on_tick if recorder is not None else None, *observers),
             stop=stop,
             max_missed_deadlines=max_missed_deadlines,
         )
         wall_start = time.time()
         try:
             result = runtime.run(max_time if max_time is not None else float("inf"))
+            if recorder is not None:
+                recorder.close(runtime, result)
         finally:
             watcher.close()
+            if recorder is not None:
+                recorder.close(runtime)  # when the run raised; else already closed
     finally:
         gc.unfreeze()
     if journal is not None:
@@ -214,6 +243,8 @@ def robot_run(
         link=stats() if callable(stats) else {},
         resumed_from=tuple(done),
         wall_start=wall_start,
+        recording=record if recorder is not None else None,
+        recording_error=recorder.error if recorder is not None else recording_error,
     )
 
 
@@ -238,6 +269,8 @@ def robot_metrics(run: RobotRun) -> dict[str, object]:
         "safety_stops": [
             e.as_dict() for e in result.events if e.kind in ("safety", "link-lost", "fault")
         ],
+        "recording": run.recording.name if run.recording is not None else None,
+        "recording_error": run.recording_error,
     }
 
 

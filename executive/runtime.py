@@ -28,10 +28,12 @@ import py_trees
 from behaviours.base import Controller
 from behaviours.keys import (
     COMMAND,
+    FEATURES,
     OBSTACLES,
     OPERATOR,
     POSE,
     PROGRESS,
+    QUESTION,
     SENSOR_FRAME,
     SERVO,
     MissionProgress,
@@ -198,7 +200,7 @@ class Runtime:
         self.bb = py_trees.blackboard.Client(name="runtime")
         for key in (SENSOR_FRAME, OPERATOR, COMMAND):
             self.bb.register_key(key=key.name, access=py_trees.common.Access.WRITE)
-        for key in (POSE, OBSTACLES, PROGRESS, SERVO):
+        for key in (POSE, OBSTACLES, PROGRESS, SERVO, FEATURES, QUESTION):
             self.bb.register_key(key=key.name, access=py_trees.common.Access.READ)
         self.stats = TickStats(self.period)
         self.events: list[Event] = []
@@ -276,6 +278,7 @@ class Runtime:
             pose=self._get(POSE.name),
             obstacles=self._get(OBSTACLES.name),
             reset_requested=operator.reset_estop,
+            estop_requested=operator.estop,
         )
         pose = self._get(POSE.name)
         placement = getattr(pose, "placement", None)

@@ -121,6 +121,7 @@ from shapely.geometry import Point
 from shapely.geometry.base import BaseGeometry
 
 from behaviours.laws import estop
+from behaviours.laws.estop import OPERATOR as OPERATOR_ESTOP
 from behaviours.laws.estop import EStopLatch
 from behaviours.laws.freshness import Freshness
 from behaviours.laws.obstacles import footprint_distances, observable_velocity
@@ -695,8 +696,11 @@ class SafetyLayer:
         pose: PoseEstimate | None,
         obstacles: Obstacles | None,
         reset_requested: bool = False,
+        estop_requested: bool = False,
     ) -> VelocityCommand:
-        """The command to send for the tree's ``command``; see the module docstring."""
+        """The command to send for the tree's ``command``; see the module docstring.
+        ``estop_requested``: the operator's e-stop (the HUD), latched like a bumper until
+        ``reset_requested``."""
         # 0. operator reset of a fault signalled before this call
         if reset_requested and self._fault is not None and self._fault_stamp < now:
             self._emit(now, ESTOP_RESET, f"operator reset: fault cleared ({self._fault})")
@@ -706,7 +710,7 @@ class SafetyLayer:
         if bad is not None:
             self.fault(now, f"non-finite command: {bad}")
         # 2. e-stop latch
-        self._update_estop(now, frame, obstacles, reset_requested)
+        self._update_estop(now, frame, obstacles, reset_requested, estop_requested)
         # 3. stale data
         self._update_stale(now, frame, pose, obstacles)
         stop = self._stop_reason()
@@ -773,10 +777,17 @@ class SafetyLayer:
 
     # -- e-stop, faults, stale data ---------------------------------------------------------------
     def _update_estop(
-        self, now: float, frame: SensorFrame, obstacles: Obstacles | None, reset: bool
+        self,
+        now: float,
+        frame: SensorFrame,
+        obstacles: Obstacles | None,
+        reset: bool,
+        operator: bool = False,
     ) -> None:
         """The shared latch law (behaviours.laws.estop); its transitions become events."""
         pressed = tuple(side for side in ("front", "rear") if getattr(frame.bumpers, side))
+        if operator:
+            pressed = (*pressed, OPERATOR_ESTOP)
         closest = obstacles.closest if obstacles is not None else None
         self.latch.update(now, closest, pressed, reset)
         for event in self.latch.events:

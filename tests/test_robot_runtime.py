@@ -13,11 +13,11 @@ import pytest
 from executive.cli import main
 from executive.core.loader import load_mission
 from executive.core.records import SensorFrame, VelocityCommand
+from executive.hud.server import HudServer
 from executive.operator import (
     COMMANDS,
     ENDPOINT_FILE,
     SECRET_FILE,
-    OperatorEndpoint,
     OperatorError,
     OperatorState,
     send_command,
@@ -128,7 +128,7 @@ def test_operator_state_semantics():
 @pytest.fixture
 def endpoint(tmp_path):
     state = OperatorState()
-    ep = OperatorEndpoint(state, tmp_path, status=lambda: {"controller": "go to CP1"})
+    ep = HudServer(state, tmp_path, status=lambda: {"controller": "go to CP1"})
     yield ep
     ep.close()
 
@@ -182,7 +182,7 @@ def test_no_running_executive_is_said(tmp_path, capsys):
 
 
 def test_closing_the_endpoint_removes_its_secret(tmp_path):
-    ep = OperatorEndpoint(OperatorState(), tmp_path, status=dict)
+    ep = HudServer(OperatorState(), tmp_path, status=dict)
     ep.close()
     assert not (tmp_path / SECRET_FILE).exists() and not (tmp_path / ENDPOINT_FILE).exists()
 

@@ -148,6 +148,10 @@ class NotTrapped(Guard):
         self._since = 0.0
         self._seen = -math.inf
 
+    def restart(self, now: float) -> None:
+        """Start the period again from ``now`` (the operator said wait, or took over)."""
+        self._best, self._since, self._seen = None, now, now
+
     def update(self) -> Status:
         # Not reset in initialise(): py_trees calls it before every tick of a behaviour
         # that returned SUCCESS. A navigation re-entered after a pause starts afresh.

@@ -24,6 +24,8 @@ LATCHED = "latched"
 RELEASED = "released"  # by itself, after the hold
 RESET = "reset"  # by the operator
 RESET_REFUSED = "reset-refused"  # a bumper is still pressed
+OPERATOR = "operator"
+"""The name of the operator's e-stop among the "bumpers" of :meth:`EStopLatch.update`."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -53,7 +55,9 @@ class EStopLatch:
     ) -> bool:
         """Advance the latch; True while latched. ``r_c`` None: no obstacle estimate.
 
-        ``bumper`` is a flag or the names of the pressed bumpers (for the reason).
+        ``bumper`` is a flag or the names of the pressed bumpers (for the reason);
+        :data:`OPERATOR` among them is the operator's e-stop (the HUD's button), which
+        latches like a bumper: released by an operator reset only.
         """
         self.events = []
         rising = reset and not self._reset_before
@@ -63,8 +67,14 @@ class EStopLatch:
         if pressed or near:
             cause = "bumper" if pressed or self.cause == "bumper" else "obstacle"
             if pressed:
-                sides = " and ".join(bumper) if isinstance(bumper, tuple) else ""
-                reason, value = f"{sides + ' ' if sides else ''}bumper pressed", None
+                names = bumper if isinstance(bumper, tuple) else ()
+                sides = " and ".join(n for n in names if n != OPERATOR)
+                reason = (
+                    f"{sides + ' ' if sides else ''}bumper pressed" if sides or not names else ""
+                )
+                if OPERATOR in names:
+                    reason = "operator e-stop" + (f" and {reason}" if reason else "")
+                value = None
             else:
                 reason, value = f"obstacle at {r_c:.2f} m < r_ES {self.r_es:.2f} m", r_c
             if not self.latched or cause != self.cause:

@@ -366,9 +366,39 @@ class FeatureObservations:
 
 
 @dataclass(frozen=True, slots=True)
+class JoystickCommand:
+    """The operator's virtual joystick (the HUD, issue 15): the speed (m/s) and turn rate
+    (rad/s) asked for, ``stamp`` when it reached the executive (runtime clock). A
+    dead-man: the stream must keep coming, a stale one stops the robot."""
+
+    stamp: float
+    v: float
+    omega: float
+
+
+@dataclass(frozen=True, slots=True)
+class FollowRequest:
+    """Collaborative mode (seed 000 Table 2.3, lines 1379-1452): follow the person the
+    operator designated at ``(x, y)`` in the airport frame A (a tap on the HUD's top view)
+    at ``distance`` (m); ``stamp`` when it was asked (runtime clock)."""
+
+    stamp: float
+    x: float
+    y: float
+    distance: float = 1.5
+
+
+@dataclass(frozen=True, slots=True)
 class OperatorRequests:
-    """What the operator asks for: reset a latched e-stop, take over, or abort."""
+    """What the operator asks for: reset a latched e-stop, take over, or abort; with the
+    HUD (issue 15) also an e-stop of their own (latched until ``reset_estop``), the
+    joystick while they have the robot, a person to follow, and the answer to the
+    question the run asked (``"wait"``, ``"take-over"`` or ``"skip"``; one-shot)."""
 
     reset_estop: bool = False
     take_over: bool = False
     abort: bool = False
+    estop: bool = False
+    joystick: JoystickCommand | None = None
+    follow: FollowRequest | None = None
+    answer: str | None = None
