@@ -439,6 +439,10 @@ def _run(
             server.close()
 
 
+FOXGLOVE_PORT = 8765
+"""Foxglove's own default: where ``--live`` serves the recording to a Foxglove app."""
+
+
 def _serve_live(
     scenario: Scenario, args: argparse.Namespace, out: Path
 ) -> tuple[object, dict[str, object]]:
@@ -470,6 +474,10 @@ def _serve_live(
         "observers": (telemetry.on_tick,),
         "pace": args.pace,
         "ask_operator": True,
+        # a HUD on any free port (0, tests) puts Foxglove on any free port too
+        "foxglove": (host or "127.0.0.1", FOXGLOVE_PORT if int(port) else 0)
+        if args.record
+        else None,
     }
     return server, options
 
@@ -609,10 +617,11 @@ def build_parser() -> argparse.ArgumentParser:
         "--live",
         metavar="[HOST:]PORT",
         nargs="?",
-        const="127.0.0.1:8765",
+        const="127.0.0.1:8080",
         default=None,
-        help="serve the operator's HUD (default 127.0.0.1:8765) and run at real time: "
-        "watch and drive the run from a browser (docs/hud.md)",
+        help="serve the operator's HUD (default 127.0.0.1:8080) and run at real time: "
+        "watch and drive the run from a browser (docs/hud.md); the recording is also "
+        "served to Foxglove on the same host, port 8765 (docs/recording.md)",
     )
     dry.add_argument(
         "--pace",

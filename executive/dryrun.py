@@ -51,7 +51,7 @@ from executive.journal import (
     MissionBinding,
     read_journal,
 )
-from executive.recording import Recorder
+from executive.recording import Recorder, serve_live
 from executive.runtime import (
     DEFAULT_MAX_MISSED_DEADLINES,
     RunResult,
@@ -646,6 +646,7 @@ def dry_run(
     record: Path | None = None,
     observers: Sequence[TickHook] = (),
     pace: float | None = None,
+    foxglove: tuple[str, int] | None = None,
 ) -> DryRun:
     """Run the scenario's mission with the executive in sim2d and judge it.
 
@@ -663,7 +664,8 @@ def dry_run(
     ``trapped_after`` overrides the trap period (s).
     ``observers`` are called after every tick like the runtime's own hook (the live
     HUD's telemetry); ``pace`` runs the simulation at that multiple of real time (the
-    live dry-run: 1) instead of as fast as it can.
+    live dry-run: 1) instead of as fast as it can; ``foxglove`` (host, port) also serves
+    the recording live over the Foxglove WebSocket protocol (needs ``record``).
     ``record`` names an MCAP file to record the run to for Foxglove (issue 15,
     :mod:`executive.recording`; overwritten), opened with the journal.
     """
@@ -727,6 +729,13 @@ def dry_run(
             )
         except OSError as exc:  # no recording is no reason not to run
             recording_error = f"cannot record to {record}: {exc.strerror or exc}"
+    if recorder is not None and foxglove is not None:
+        try:
+            server = serve_live(recorder, *foxglove)
+            if progress_out is not None:
+                print(f"Foxglove live view: ws://{foxglove[0]}:{server.port}", file=progress_out)
+        except Exception as exc:  # the SDK's own error type; the run goes on without it
+            recording_error = f"cannot serve Foxglove on {foxglove[0]}:{foxglove[1]}: {exc}"
 
     def on_tick(t: float, frame: SensorFrame, sent: VelocityCommand, rt: Runtime) -> None:
         watcher(t, frame, sent, rt)

@@ -167,3 +167,21 @@ def test_follow_designates_a_person_and_takes_over():
     assert (request.follow.x, request.follow.y, request.follow.distance) == (3.0, -2.0, 2.0)
     state.apply("hand-back")
     assert state(1.1).follow is None
+
+
+def test_dry_run_live_serves_the_hud_and_foxglove_then_cleans_up(tmp_path, capsys):
+    from executive.cli import main
+
+    out = tmp_path / "live"
+    lab = MISSIONS / "lab" / "visual-servoing.xml"
+    code = main(
+        ["dry-run", str(lab), "--live", "127.0.0.1:0", "--pace", "50", "--max-time", "5",
+         "--out", str(out), "--quiet"]
+    )  # fmt: skip
+    assert code == 1  # not finished in 5 s: a timeout, judged and reported
+    printed = capsys.readouterr()
+    assert "operator HUD: http://127.0.0.1:" in printed.out and "?token=" in printed.out
+    assert "Foxglove live view: ws://127.0.0.1:" not in printed.out  # --quiet: no progress
+    assert (out / "metrics.json").exists() and (out / "run.mcap").exists()
+    assert not (out / SECRET_FILE).exists() and not (out / ENDPOINT_FILE).exists()
+    assert main(["dry-run", str(lab), "--live", "host:port", "--out", str(out)]) == 2
