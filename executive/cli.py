@@ -453,13 +453,7 @@ def _serve_live(
 
     host, _, port = str(args.live).rpartition(":")
     state = OperatorState()
-    telemetry = Telemetry(
-        scenario.mission,
-        rate_hz=args.rate,
-        operator=state.snapshot,
-        ask=state.ask,
-        withdraw=state.withdraw,
-    )
+    telemetry = Telemetry.of_operator(scenario.mission, state, args.rate)
     try:
         server = HudServer(
             state, out, status=dict, host=host or "127.0.0.1", port=int(port), telemetry=telemetry

@@ -174,14 +174,7 @@ def _run(args: argparse.Namespace, stop: StopRequest) -> int:
     try:
         # the operator's reset releases the base's own bumper latch too
         operator.listeners.append(lambda c: link.request_reset() if c == "reset-estop" else None)
-        telemetry = Telemetry(
-            mission,
-            rate_hz=args.rate,
-            operator=operator.snapshot,
-            status=link.status,
-            ask=operator.ask,
-            withdraw=operator.withdraw,
-        )
+        telemetry = Telemetry.of_operator(mission, operator, args.rate, status=link.status)
         endpoint = HudServer(
             operator,
             out,

@@ -41,13 +41,7 @@ class LiveDryRun:
         self.scenario = scenario
         self.state = OperatorState()
         self.sim = SimRobot(scenario)
-        self.telemetry = Telemetry(
-            scenario.mission,
-            rate_hz=rate_hz,
-            operator=self.state.snapshot,
-            ask=self.state.ask,
-            withdraw=self.state.withdraw,
-        )
+        self.telemetry = Telemetry.of_operator(scenario.mission, self.state, rate_hz)
         self.server = HudServer(
             self.state,
             out,

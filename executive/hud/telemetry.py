@@ -46,6 +46,7 @@ from executive.core.records import (
 )
 
 if TYPE_CHECKING:
+    from executive.operator import OperatorState
     from executive.runtime import Runtime
 
 log = logging.getLogger("walkaround.hud")
@@ -115,6 +116,25 @@ class Telemetry:
         self._completed_at: list[float] = []
         self._trail: list[list[float]] = []
         self.set_placement(mission.nominal_placement())
+
+    @classmethod
+    def of_operator(
+        cls,
+        mission: Mission,
+        state: OperatorState,
+        rate_hz: float = 50.0,
+        status: Callable[[], Mapping[str, object]] | None = None,
+    ) -> Telemetry:
+        """The telemetry of a run with ``state`` as its operator: the HUD shows the
+        operator's side and posts the tree's questions to them."""
+        return cls(
+            mission,
+            rate_hz=rate_hz,
+            operator=state.snapshot,
+            status=status,
+            ask=state.ask,
+            withdraw=state.withdraw,
+        )
 
     # -- readers (the web server) ------------------------------------------------------------
     def latest(self) -> tuple[int, dict[str, object] | None]:
