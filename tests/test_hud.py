@@ -157,6 +157,15 @@ def test_the_operator_estop_and_questions_are_one_shot():
     state.apply("answer", {"choice": "skip"})
     assert state(0.2).answer == "skip" and state(0.3).answer is None
     assert state.snapshot()["question"] is None
+    # "take over" as an answer hands the robot to the operator, as the button does
+    state.ask("CP05 trapped: what now?", ("wait", "take-over", "skip"))
+    state.apply("answer", {"choice": "take-over"})
+    request = state(0.4)
+    assert request.answer == "take-over" and request.take_over
+    # a question the run no longer asks (the robot got free) is withdrawn
+    state.ask("CP06 trapped: what now?", ("wait", "take-over", "skip"))
+    state.withdraw()
+    assert state.snapshot()["question"] is None
 
 
 def test_follow_designates_a_person_and_takes_over():
