@@ -202,6 +202,8 @@ class Runtime:
             self.bb.register_key(key=key.name, access=py_trees.common.Access.WRITE)
         for key in (POSE, OBSTACLES, PROGRESS, SERVO, FEATURES, QUESTION):
             self.bb.register_key(key=key.name, access=py_trees.common.Access.READ)
+        # the blackboard is the process's: a question an earlier run asked is not this one's
+        py_trees.blackboard.Blackboard.unset(QUESTION.name)
         self.stats = TickStats(self.period)
         self.events: list[Event] = []
         self.controller = "none"

@@ -13,6 +13,7 @@ from executive.dryrun import dry_run
 from executive.report import metrics
 from sim2d.scenario import load_scenario
 from tests.conftest import MISSIONS
+from tests.sim2d_helpers import assert_finished_by_servoing
 
 LAB = MISSIONS / "lab" / "scenarios"
 POSITION, HEADING_DEG = 0.02, 0.5
@@ -45,6 +46,7 @@ def _assert_accurate(run):
 def test_lab_reproduces_pbvs_ibvs_metric_and_reaches_every_checkpoint_by_servoing(clear_run):
     run = clear_run
     _assert_accurate(run)
+    assert assert_finished_by_servoing(run) == ["CP1", "CP2", "CP3"]
     events = _controller_events(run)
     names = [e.detail["to"] for e in events]
     # CP1 and CP2: metric to the servo start, then PBVS, then IBVS, which ends the
