@@ -174,7 +174,9 @@ def _run(args: argparse.Namespace, stop: StopRequest) -> int:
     try:
         # the operator's reset releases the base's own bumper latch too
         operator.listeners.append(lambda c: link.request_reset() if c == "reset-estop" else None)
-        telemetry = Telemetry.of_operator(mission, operator, args.rate, status=link.status)
+        # no link status in the snapshots: it summarises every wire's latencies (O(run)),
+        # which stalled the tick late in a run; the HUD's /status answers it on request
+        telemetry = Telemetry.of_operator(mission, operator, args.rate)
         endpoint = HudServer(
             operator,
             out,
