@@ -198,10 +198,12 @@ class Journal:
         pose: tuple[float, ...] | None,
         *,
         sigma_f: float | None = None,
+        travel: tuple[float, float] | None = None,
     ) -> None:
         """Write what changed since the last call; a completed checkpoint carries the pose
         (in A) and the estimate's position uncertainty (``sigma_f``, m) it was completed
-        with."""
+        with. A pose record (every ``pose_period``) carries the base's odometers
+        (``travel``, :class:`executive.core.records.WheelSpeeds`) when known."""
         last = self._last
         if progress.checkpoint != last.checkpoint and progress.checkpoint is not None:
             self.write(
@@ -230,7 +232,10 @@ class Journal:
         if due and pose is not None and all(math.isfinite(v) for v in pose):
             self._pose_at = t
             pose_a = [round(v, 6) for v in pose]
-            self.write({"t": round(t, 3), "event": "pose", "pose_a": pose_a})
+            line: dict[str, object] = {"t": round(t, 3), "event": "pose", "pose_a": pose_a}
+            if travel is not None and all(math.isfinite(v) for v in travel):
+                line["travel"] = [round(v, 4) for v in travel]
+            self.write(line)
 
     def close(self) -> None:
         if self._fd is not None:
@@ -263,6 +268,9 @@ class JournalState:
     """The latest pose estimate in A the journal recorded (``pose`` records of a robot
     run, every :data:`POSE_PERIOD`): where a robot stopped mid-leg really stands, which
     its last checkpoint's pose is not."""
+    last_travel: tuple[float, float] | None = None
+    """The base's odometers (left, right, m) when :attr:`last_pose` was recorded, if it
+    reports them: with the odometers now, how far the robot moved since."""
 
 
 MAX_MAGNITUDE = 1e6
@@ -283,6 +291,10 @@ def _str(v: object) -> bool:
 
 def _triple(v: object) -> bool:
     return isinstance(v, list) and len(v) == 3 and all(_number(x) for x in v)
+
+
+def _pair(v: object) -> bool:
+    return isinstance(v, list) and len(v) == 2 and all(_number(x) for x in v)
 
 
 def _bool(v: object) -> bool:
@@ -343,6 +355,7 @@ _FIELDS: dict[str, dict[str, tuple[Check, str]]] = {
 _OPTIONAL: dict[str, dict[str, tuple[Check, str]]] = {
     "checkpoint-done": {"pose_a": (_triple, "three numbers"), "sigma_f": (_number, "a number")},
     "item": {"stale": (_bool, "true or false")},
+    "pose": {"travel": (_pair, "two numbers")},
 }
 
 
@@ -377,6 +390,7 @@ def read_journal(path: Path) -> JournalState:
     truth: dict[str, dict[str, object]] = {}
     phase, checkpoint = "approach", None
     pose = last_pose = None
+    last_travel: tuple[float, float] | None = None
     ended = end_t = None
     for number, raw in enumerate(lines, start=1):
         if len(raw) > MAX_LINE_BYTES:
@@ -452,6 +466,8 @@ def read_journal(path: Path) -> JournalState:
             ended, end_t = record["outcome"], float(record["t"])
         elif event == "pose":
             last_pose = tuple(float(v) for v in record["pose_a"])
+            travel = record.get("travel")
+            last_travel = (float(travel[0]), float(travel[1])) if travel is not None else None
         elif event == "resume":  # what a stopped attempt inspected is done again
             ended = end_t = None
             results = [r for r in results if r.checkpoint in completed]
@@ -474,6 +490,7 @@ def read_journal(path: Path) -> JournalState:
         end_t=end_t,
         keep_bytes=keep,
         last_pose=last_pose,  # type: ignore[arg-type]
+        last_travel=last_travel,
     )
 
 

@@ -20,7 +20,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TextIO
 
+import py_trees
+
 from behaviours.keys import POSE, PROGRESS, MissionProgress
+from behaviours.sensing.localisation import Localise
 from executive.compiler import CompileOptions, compile_mission
 from executive.core.files import write_atomic
 from executive.core.frames import Pose2
@@ -29,6 +32,7 @@ from executive.core.records import PoseEstimate, SensorFrame, VelocityCommand
 from executive.journal import Journal, JournalState, MissionBinding
 from executive.operator import OperatorState
 from executive.recording import Recorder, chain
+from executive.robotlink.canbase import travel_difference
 from executive.runtime import (
     DEFAULT_MAX_MISSED_DEADLINES,
     Clock,
@@ -42,8 +46,9 @@ from executive.safety import SafetyLayer
 
 REPORT_FILES = ("metrics.json", "events.jsonl")
 POSE_PERIOD = 0.2
-"""Seconds between the pose records of a robot run's journal: a run killed mid-leg resumes
-from where the robot stood at most this long before (it brakes within 0.15 s)."""
+"""Seconds between the pose records of a robot run's journal. A run killed mid-leg
+resumes from the last of them plus the motion the base's odometers counted since (the
+robot drove on until its watchdog braked it)."""
 
 
 @dataclass
@@ -66,6 +71,10 @@ class RobotRun:
     link: dict[str, object]
     resumed_from: tuple[str, ...] = ()
     wall_start: float = 0.0
+    moved_while_down: tuple[float, float] | None = None
+    """A resumed run: how far (m) the base's odometers say the left and right sides
+    travelled between the journal's last pose and the start (the robot coasting and
+    braking after the executive died); the start pose includes it."""
     recording: Path | None = None
     """The run's MCAP recording for Foxglove (issue 15), when one was asked for."""
     recording_error: str | None = None
@@ -179,6 +188,9 @@ def robot_run(
         ready = getattr(link, "wait_ready", None)
         if callable(ready) and not ready(should_stop=lambda: bool(stop)):
             raise NotStartedError(f"{stop.reason} before the run started; nothing changed")
+        moved = _moved_while_down(resume, link)
+        if moved is not None:
+            _localiser(compiled.root).moved_before_start(*moved)
         if before_start is not None:
             before_start()
         journal = None
@@ -243,9 +255,28 @@ def robot_run(
         link=stats() if callable(stats) else {},
         resumed_from=tuple(done),
         wall_start=wall_start,
+        moved_while_down=moved,
         recording=record if recorder is not None else None,
         recording_error=recorder.error if recorder is not None else recording_error,
     )
+
+
+def _moved_while_down(resume: JournalState | None, link: object) -> tuple[float, float] | None:
+    """(left, right) travel (m) of the base's odometers since the journal's last pose
+    record, when both that record and the base carry them (WHEEL_TRAVEL); None otherwise
+    (the run starts at the recorded pose, up to the braking distance off)."""
+    if resume is None or resume.last_pose is None or resume.last_travel is None:
+        return None
+    read = getattr(link, "read", None)
+    wheels = read().wheels if callable(read) else None
+    if wheels is None or wheels.travel is None:
+        return None
+    (left, right), (left0, right0) = wheels.travel, resume.last_travel
+    return travel_difference(left, left0), travel_difference(right, right0)
+
+
+def _localiser(root: py_trees.behaviour.Behaviour) -> Localise:
+    return next(node for node in root.iterate() if isinstance(node, Localise))
 
 
 def robot_metrics(run: RobotRun) -> dict[str, object]:
@@ -263,6 +294,9 @@ def robot_metrics(run: RobotRun) -> dict[str, object]:
         "checkpoints_total": len(run.mission.checkpoints),
         "checkpoints_completed": len(result.progress.completed),
         "resumed_after": list(run.resumed_from),
+        "moved_while_down_m": (
+            None if run.moved_while_down is None else [round(v, 4) for v in run.moved_while_down]
+        ),
         "checkpoints": [cp.__dict__ for cp in run.checkpoints],
         "tick_timing": result.stats.summary(),
         "link": run.link,

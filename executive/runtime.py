@@ -290,12 +290,12 @@ class Runtime:
         self.stats.durations.append(duration)
         self._missed_in_a_row = self._missed_in_a_row + 1 if duration > self.period else 0
         self.robot.send(self.sent)
-        self._record(now)
+        self._record(now, frame.wheels.travel if frame.wheels is not None else None)
         if self.on_tick is not None:
             self.on_tick(now, frame, self.sent, self)
         return self.root.status
 
-    def _record(self, now: float) -> None:
+    def _record(self, now: float, travel: tuple[float, float] | None = None) -> None:
         name, reason = self._active_controller()
         if name != self.controller:
             self.events.append(
@@ -317,7 +317,11 @@ class Runtime:
         if self.journal is not None:
             p = getattr(pose, "pose_a", None)
             self.journal.record(
-                now, progress, None if p is None else (p.x, p.y, p.theta), sigma_f=sigma
+                now,
+                progress,
+                None if p is None else (p.x, p.y, p.theta),
+                sigma_f=sigma,
+                travel=travel,
             )
 
     def _flag_uncertain(self, now: float, done: tuple[str, ...], sigma: float | None) -> None:

@@ -45,6 +45,8 @@ from executive.robotlink.canbase import (
     latency_stats,
     load_dbc,
     message_timeout,
+    travel_difference,
+    wrap_travel,
 )
 
 DB = load_dbc()
@@ -101,7 +103,7 @@ class Rig:
     def publish(self, **inputs: object) -> None:
         ptu = inputs.get("ptu") or {}
         assert isinstance(ptu, dict)
-        self.from_base(lambda: self.fw.publish(**inputs), 5 + len(ptu))
+        self.from_base(lambda: self.fw.publish(**inputs), 6 + len(ptu))
 
     def cycle(self, command: VelocityCommand = FORWARD) -> None:
         """One control cycle: the executive sends, the base consumes."""
@@ -154,7 +156,7 @@ def test_dbc_declares_the_bus_and_the_protection_layout():
     assert DB.buses[0].baudrate == 500_000
     commands = [m for m in DB.messages if EXECUTIVE_NODE in m.senders]
     statuses = [m for m in DB.messages if BASE_NODE in m.senders]
-    assert len(commands) + len(statuses) == len(DB.messages) == 10
+    assert len(commands) + len(statuses) == len(DB.messages) == 11
     assert max(m.frame_id for m in commands) < min(m.frame_id for m in statuses)
     for message in DB.messages:
         assert not message.is_extended_frame and message.frame_id < 0x800
@@ -700,7 +702,7 @@ def test_latency_is_measured_from_the_bus_time_stamp(rig):
     for _ in range(5):
         rig.publish()
     latency = rig.link.stats().latency
-    assert latency.count == 25
+    assert latency.count == 5 * 6  # six status frames per cycle
     assert 0.0 <= latency.p50 <= latency.p99 <= latency.max < 5.0
 
 
@@ -709,6 +711,31 @@ def test_close_stops_the_receive_thread(rig):
     rig.link.close()  # idempotent
     rig.fw.publish()
     assert rig.exec_bus.recv(timeout=1.0) is not None  # left on the bus, nobody reads it
+
+
+# -- the odometers ------------------------------------------------------------------------------
+def test_the_odometers_integrate_the_wheel_speeds_and_reach_the_frame(rig):
+    """WHEEL_TRAVEL: each side's distance since the firmware started, integrated from its
+    wheels' speeds (trapezoids on the base's clock), in every frame the link reads."""
+    rig.publish(wheels=(0.0, 0.0, 0.0, 0.0))
+    assert rig.fw.travel == (0.0, 0.0)
+    for _ in range(50):  # 1 s at 50 Hz: accelerating to 0.2 and 0.4 m/s in the first cycle
+        rig.base_clock.t += 0.02
+        rig.publish(wheels=(0.2, 0.4, 0.2, 0.4))
+    assert rig.fw.travel == pytest.approx((0.198, 0.396))
+    wheels = rig.link.snapshot().fill(SensorFrame(0.0)).wheels
+    assert wheels is not None and wheels.travel == pytest.approx((0.198, 0.396), abs=1e-3)
+
+
+@given(st.floats(-1e4, 1e4), st.floats(-30.0, 30.0))
+def test_wrapped_odometer_differences_are_the_travel(start, travelled):
+    """The 26-bit odometers wrap every 67 km; a difference of two readings is the travel
+    in between, to the millimetre, wherever the counter stood."""
+    for offset in (0.0, 33554.0, -33554.0):
+        before = wrap_travel(start + offset)
+        after = wrap_travel(start + offset + travelled)
+        assert abs(travel_difference(after, before) - travelled) <= 1.5e-3
+        assert -33554.432 <= after <= 33554.431
 
 
 # -- a recorded run decodes with the shipped DBC ---------------------------------------------
@@ -729,7 +756,7 @@ def test_a_recorded_log_decodes_with_the_shipped_dbc(rig, tmp_path, suffix):
     logger.stop()
 
     replayed = list(can.LogReader(path))
-    assert len(replayed) == len(recorded) == 3 * (3 + 6) + 1
+    assert len(replayed) == len(recorded) == 3 * (3 + 7) + 1
     db = load_dbc()
     names = set()
     for original, msg in zip(recorded, replayed, strict=True):

@@ -369,6 +369,12 @@ def test_follow_the_operator_60_m_among_parked_vehicles(tmp_path):
     mission = run.scenario.mission
     gaps = _true_gaps(log, mission.platform.length, mission.platform.width, 0.3)
     t = log[:, 0]
+    # the run went the whole walk (a fault would have ended it early: say which)
+    assert run.result.outcome == "timeout" and t[-1] > duration - 0.5, (
+        run.result.outcome,
+        run.result.reason,
+        [e for e in run.result.events if e.kind != "localisation"],
+    )
     # caught up: from the first time the gap is within 0.1 m of the set gap, to the end
     # (the walker's stop included)
     start = int(np.flatnonzero((t > 2.0) & (np.abs(gaps - SET_GAP) < 0.1))[0])

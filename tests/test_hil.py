@@ -125,6 +125,11 @@ def test_killed_run_the_base_brakes_and_resume_finishes(hil):
     assert code == 0, out + sim_out
     metrics = rig.metrics()
     assert metrics["resumed_after"] == ["CP1"]
+    # the robot drove on after the kill until the base braked: the resumed run started
+    # from the last journaled pose plus what the base's odometers counted since
+    moved = metrics["moved_while_down_m"]
+    assert moved is not None and max(abs(v) for v in moved) > 0.005, moved
+    print(f"moved while down: {moved} m; judged: {rig.judged()}")
     assert [c["id"] for c in metrics["checkpoints"]] == ["CP2", "CP3"]  # none twice, none skipped
     _assert_within_tolerance(rig, ["CP2", "CP3"])
 

@@ -6,6 +6,7 @@ message naming the journal's line, no traceback, and nothing driven (no report w
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -16,6 +17,8 @@ import pytest
 
 from behaviours.keys import ItemResult, MissionProgress
 from executive.cli import main
+from executive.compiler import CompileOptions, compile_mission
+from executive.core.frames import Pose2
 from executive.core.loader import load_mission
 from executive.dryrun import dry_run
 from executive.journal import (
@@ -374,14 +377,48 @@ def test_a_robot_runs_journal_keeps_where_the_robot_stood(tmp_path):
     journal = Journal(path, "m", pose_period=0.5)
     journal.record(0.0, MissionProgress(), (1.0, 2.0, 0.1))
     journal.record(0.2, MissionProgress(), (1.1, 2.0, 0.1))  # within the period: not kept
-    journal.record(0.6, MissionProgress(), (1.5, 2.0, 0.2))
+    journal.record(0.6, MissionProgress(), (1.5, 2.0, 0.2), travel=(12.5, 12.75))
     journal.record(0.7, MissionProgress(), (float("nan"), 2.0, 0.2))
     journal.close()
     state = read_journal(path)
     assert state.last_pose == (1.5, 2.0, 0.2)
+    assert state.last_travel == (12.5, 12.75)  # the base's odometers with it
     assert state.pose_a is None  # the last checkpoint's pose is another thing
     plain = tmp_path / "plain.jsonl"
     journal = Journal(plain, "m")  # a dry-run's journal: no pose records
     journal.record(0.6, MissionProgress(), (1.5, 2.0, 0.2))
     journal.close()
     assert read_journal(plain).last_pose is None
+
+
+def test_a_resumed_robot_run_starts_where_the_odometers_say_the_robot_went():
+    """The robot drove on after the executive died: the resumed run adds what the base's
+    odometers counted since the journal's last pose record (WHEEL_TRAVEL), as one arc."""
+    from executive.core.records import SensorFrame, WheelSpeeds
+    from executive.journal import JournalState, MissionBinding
+    from executive.robotrun import _localiser, _moved_while_down
+
+    mission = load_mission(LAB)
+    state = JournalState(
+        MissionBinding.of(mission),
+        MissionProgress(),
+        None,
+        last_pose=(1.0, 2.0, 0.0),
+        last_travel=(33554.4, 10.0),  # the left odometer wraps on the way
+    )
+
+    class Link:
+        def read(self) -> SensorFrame:
+            wheels = WheelSpeeds(5.0, 0.0, 0.0, travel=(-33554.164, 10.3))  # 33554.7 wrapped
+            return SensorFrame(5.0, wheels=wheels)
+
+    moved = _moved_while_down(state, Link())
+    assert moved == pytest.approx((0.3, 0.3), abs=1e-6)
+    compiled = compile_mission(mission, CompileOptions(start=Pose2(1.0, 2.0, 0.0)))
+    localise = _localiser(compiled.root)
+    localise.moved_before_start(*moved)
+    pose = localise.filter.pose
+    speed_scale = localise.filter.state[5]  # c, eq. 2.1's scale
+    assert (pose.x, pose.y, pose.theta) == pytest.approx((1.0 + 0.3 * speed_scale, 2.0, 0.0))
+    # without odometers on either side nothing is added (the recorded pose it is)
+    assert _moved_while_down(dataclasses.replace(state, last_travel=None), Link()) is None

@@ -14,6 +14,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import json
+import math
 import os
 import signal
 import subprocess
@@ -305,24 +306,44 @@ def test_a_full_disk_for_the_report_is_said_and_nothing_is_half_written(
 
 
 # -- §5: deadline overruns and the summary ---------------------------------------------------------
-def test_consecutive_deadline_misses_stop_the_robot(monkeypatch):
-    """A tick that burns 30 ms of CPU at 50 Hz: after 3 in a row the run stops, says why."""
+def _slow_ticks_after(monkeypatch, start: float, until: float = math.inf) -> None:
+    """Every tick from ``start`` to ``until`` (simulated s) burns 30 ms of CPU at 50 Hz."""
     filter_ = SafetyLayer.filter
 
     def slow(self, command, *, now, **kw):
-        if now > 2.0:
+        if start < now < until:
             t0 = time.thread_time()
             while time.thread_time() - t0 < 0.03:
                 pass
         return filter_(self, command, now=now, **kw)
 
     monkeypatch.setattr(SafetyLayer, "filter", slow)
+
+
+def test_consecutive_deadline_misses_stop_the_robot(monkeypatch):
+    """A tick that burns 30 ms of CPU at 50 Hz: after 3 in a row the run stops, says why."""
+    _slow_ticks_after(monkeypatch, 2.0)
     run = dry_run(load_scenario(LAB_SCENARIO), max_time=10.0, max_missed_deadlines=3)
     assert run.result.outcome == "failed"
     assert "3 consecutive tick deadlines missed" in run.result.reason
     assert run.last_commands[-1][1].v == 0.0 and run.last_commands[-1][1].omega == 0.0
     assert 2.0 < run.robot.time < 2.2
     assert not run.succeeded and "deadlines missed" in run.first_cause
+
+
+def test_a_dry_run_counts_missed_deadlines_but_its_outcome_does_not_depend_on_them(
+    monkeypatch,
+):
+    """By default a dry-run does not stop on missed deadlines (a busy or virtual machine
+    must not change a simulated outcome): the same run with and without a second of slow
+    ticks drives the robot identically, and the misses are counted."""
+    scenario = load_scenario(LAB_SCENARIO)
+    fast = dry_run(scenario, max_time=6.0)
+    _slow_ticks_after(monkeypatch, 2.0, 3.0)
+    slow = dry_run(scenario, max_time=6.0)
+    assert slow.result.outcome == fast.result.outcome == "timeout"
+    assert slow.result.stats.misses >= 49 > fast.result.stats.misses
+    assert slow.robot.world.robot_pose == fast.robot.world.robot_pose
 
 
 def test_a_latched_bumper_is_the_first_cause(tmp_path):

@@ -19,7 +19,7 @@ from behaviours.keys import POSE, PROGRESS, SENSOR_FRAME, MissionProgress
 from behaviours.laws.localisation import PoseFilter
 from behaviours.sensing.registration import AircraftRegistrar
 from executive.core.frames import AircraftPlacement, Pose2
-from executive.core.records import FrameReference, RegistrationRecord, SensorFrame
+from executive.core.records import FrameReference, RegistrationRecord, SensorFrame, WheelSpeeds
 
 
 class Localise(Node):
@@ -47,6 +47,16 @@ class Localise(Node):
         self._wheels_stamp: float | None = None
         self._gps_stamp: float | None = None
         self._last: RegistrationRecord | None = None
+
+    def moved_before_start(self, left: float, right: float) -> None:
+        """The base's odometers say its sides travelled ``left`` and ``right`` metres since
+        the pose this node starts from (a resumed robot run: after the executive died the
+        robot drove on until its base's watchdog braked it). Applied before the first tick
+        as one constant-curvature odometry step of the filter (eq. 2.1 and 2.2 with its own
+        speed and yaw scales; its covariance grows accordingly)."""
+        if self._wheels_stamp is not None:
+            raise RuntimeError("the pose filter has started: the motion is in it already")
+        self.filter.predict(WheelSpeeds(0.0, left, right), None, 1.0)
 
     def update(self) -> py_trees.common.Status:
         frame: SensorFrame = self.read(SENSOR_FRAME)

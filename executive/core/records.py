@@ -99,11 +99,15 @@ class PanTilt:
 
 @dataclass(frozen=True, slots=True)
 class WheelSpeeds:
-    """Measured ground speed of the left and right wheels (m/s)."""
+    """Measured ground speed of the left and right wheels (m/s); ``travel`` the base's
+    odometers (left, right, m) at ``stamp`` when it reports them (a real base's encoder
+    counts: they go on counting while the executive is down, so a restarted run knows how
+    far the robot moved meanwhile, :func:`behaviours.laws.localisation.arc_motion`)."""
 
     stamp: float
     left: float
     right: float
+    travel: tuple[float, float] | None = None
 
 
 @dataclass(frozen=True, slots=True)

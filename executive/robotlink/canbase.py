@@ -467,10 +467,13 @@ class BaseSnapshot:
     fault: BaseFault | None = None
     battery_voltage: float | None = None
     battery_percent: float | None = None
+    travel: tuple[float, float] | None = None
+    """The base's odometers (left, right, m; WHEEL_TRAVEL, wrapped)."""
 
     def fill(self, frame: SensorFrame) -> SensorFrame:
-        """``frame`` with the base's sensors (wheels, IMU, pan-tilt angles, bumpers) set
-        from this snapshot; what the base never reported is left as it was."""
+        """``frame`` with the base's sensors (wheels with the odometers, IMU, pan-tilt
+        angles, bumpers) set from this snapshot; what the base never reported is left as it
+        was."""
         return dataclasses.replace(
             frame,
             wheels=self.wheels or frame.wheels,
@@ -666,7 +669,14 @@ class CanBaseLink(Wire):
         match received.name:
             case "WHEEL_SPEEDS":
                 left, right = (s["FL"] + s["RL"]) / 2.0, (s["FR"] + s["RR"]) / 2.0
-                latest = dataclasses.replace(latest, wheels=WheelSpeeds(now, left, right))
+                wheels = WheelSpeeds(now, left, right, latest.travel)
+                latest = dataclasses.replace(latest, wheels=wheels)
+            case "WHEEL_TRAVEL":
+                travel = (s["LEFT"], s["RIGHT"])
+                wheels = latest.wheels
+                if wheels is not None:
+                    wheels = dataclasses.replace(wheels, travel=travel)
+                latest = dataclasses.replace(latest, travel=travel, wheels=wheels)
             case "IMU":
                 imu = ImuReading(now, s["YAW_RATE"])
                 latest = dataclasses.replace(latest, imu=imu, acceleration=(s["AX"], s["AY"]))
@@ -863,6 +873,11 @@ class _FirmwareState:
     watchdog_fired_at: float | None = None
     watchdog_fired_after: float | None = None
     refused_resets: int = 0
+    travel: tuple[float, float] = (0.0, 0.0)
+    """The odometers (left, right, m) since the firmware started."""
+    sides_at: tuple[float, float, float] | None = None
+    """(left speed, right speed, time) of the last publish: the odometers integrate the
+    wheel speeds between publishes (trapezoids)."""
 
 
 class SimulatedBaseFirmware:
@@ -1058,9 +1073,29 @@ class SimulatedBaseFirmware:
         with self._lock:
             self._take_inputs(bumpers, estop, fault)
             self._update_watchdog(now)
+            self._count_travel(wheels, now)
             frames = self._status_frames(wheels, (yaw_rate, ax, ay), ptu or {}, battery)
         for frame in frames:
             self._bus.send(frame)
+
+    def _count_travel(self, wheels: tuple[float, float, float, float], now: float) -> None:
+        state = self._state
+        fl, fr, rl, rr = wheels
+        left, right = 0.5 * (fl + rl), 0.5 * (fr + rr)
+        if state.sides_at is not None:
+            left0, right0, t0 = state.sides_at
+            dt = max(0.0, now - t0)
+            state.travel = (
+                state.travel[0] + 0.5 * (left0 + left) * dt,
+                state.travel[1] + 0.5 * (right0 + right) * dt,
+            )
+        state.sides_at = (left, right, now)
+
+    @property
+    def travel(self) -> tuple[float, float]:
+        """The odometers (left, right, m) as counted, unwrapped."""
+        with self._lock:
+            return self._state.travel
 
     def _take_inputs(self, bumpers: tuple[bool, bool], estop: bool, fault: BaseFault) -> None:
         state = self._state
@@ -1090,6 +1125,10 @@ class SimulatedBaseFirmware:
                 },
             ),
             ("WHEEL_SPEEDS", {"FL": fl, "FR": fr, "RL": rl, "RR": rr}),
+            (
+                "WHEEL_TRAVEL",
+                {"LEFT": wrap_travel(state.travel[0]), "RIGHT": wrap_travel(state.travel[1])},
+            ),
             ("IMU", {"YAW_RATE": imu[0], "AX": imu[1], "AY": imu[2]}),
             *(
                 ("PTU_STATE", {"UNIT": self._index[unit], "PAN": pan, "TILT": tilt})
@@ -1105,6 +1144,24 @@ class SimulatedBaseFirmware:
             self._codec.encode(name, _saturated(self._codec.message(name), signals))
             for name, signals in payloads
         ]
+
+
+TRAVEL_WRAP_MM = 1 << 26
+"""WHEEL_TRAVEL's odometers wrap modulo this many millimetres (26-bit signals)."""
+
+
+def wrap_travel(metres: float) -> float:
+    """An odometer reading as WHEEL_TRAVEL carries it: whole millimetres, wrapped into
+    the signed 26-bit range."""
+    mm = round(metres * 1000.0)
+    half = TRAVEL_WRAP_MM // 2
+    return ((mm + half) % TRAVEL_WRAP_MM - half) / 1000.0
+
+
+def travel_difference(after: float, before: float) -> float:
+    """``after - before`` of two wrapped odometer readings (m): the shortest way round,
+    right while a side travels less than 33 km between them."""
+    return wrap_travel(after - before)
 
 
 def _saturated(message: DbcMessage, signals: Mapping[str, float]) -> dict[str, float]:
