@@ -382,7 +382,8 @@ def crosses_ahead(
         if abs(s0) < robot_radius + o.radius:
             continue
         ds = wh[0] * u[:, 1] - wh[1] * u[:, 0]  # (K,)
-        with np.errstate(divide="ignore", invalid="ignore"):
+        # a tiny ds overflows to inf (never within the lookahead): not a problem
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             t_c = t1 - s0 / ds
         valid = (np.abs(ds) > 1e-9) & (t_c >= t1) & (t_c <= lookahead)
         drive = np.where(valid, t_c - t1, 0.0)
