@@ -31,8 +31,9 @@ restarts a memory sequence that a higher-priority branch has stopped, which woul
 the mission again from ``start mission`` (empty progress, every checkpoint driven again).
 A resumable one remembers the child that was running and resumes there; a checkpoint
 resumes at its own navigation (the robot may have been moved), and the inspection skips
-the items the progress already records. An operator's abort holds the robot still through
-the same branch, for good; the runtime ends the run as ``aborted``.
+the items the progress already records. An operator's abort ends the mission: the robot
+drives back to the handover point P (avoidance, e-stop and geofence as on any leg; a
+take-over still pre-empts it) and the runtime ends the run as ``aborted``.
 
 After building, :func:`check_tree` proves the wiring: every blackboard key a behaviour
 reads has a writer that runs before it (or is written by the runtime), and every
@@ -98,6 +99,7 @@ from behaviours.goals import Goal
 from behaviours.guards.conditions import (
     EmergencyStop,
     NotTrapped,
+    OperatorAborted,
     OperatorTakeOver,
     PoseNotGoodEnough,
     Reached,
@@ -670,7 +672,8 @@ class _Builder:
         within :data:`JOYSTICK_SPEED` and :data:`JOYSTICK_OMEGA`), else follow the person
         they designate (laser tracks; the trail keeps the robot where the person walked,
         the safety layer filters every command), stop and ask when that person is lost,
-        else hold still. An abort holds still for good. No e-stop branch: the safety
+        else hold still. A take-over pre-empts the return to P after an abort too. No
+        e-stop branch: the safety
         layer's e-stop latch (r_ES, bumpers, the operator's e-stop) stops every command,
         and the follower's braking cap keeps its own commands outside r_ES."""
         m = self.mission
@@ -693,6 +696,17 @@ class _Builder:
             ],
         )
         return GuardedBranch("collaborative", OperatorTakeOver(), control)
+
+    def abort(self) -> py_trees.behaviour.Behaviour:
+        """After the operator's abort: back to the handover point P, then the run ends
+        (:class:`behaviours.guards.conditions.OperatorAborted`). The progress is left as
+        it was, so a later ``--resume`` goes on with the checkpoint the abort cut short."""
+        back = self.navigate(
+            "P (abort)", self.waypoint_goal(self.mission.handover), False, (0.3, None)
+        )
+        return py_trees.composites.Sequence(
+            "abort: back to P", memory=False, children=[OperatorAborted(), back]
+        )
 
     def build(self) -> py_trees.behaviour.Behaviour:
         m = self.mission
@@ -717,7 +731,7 @@ class _Builder:
         mode = py_trees.composites.Selector(
             "mode",
             memory=False,
-            children=[self.collaborative(), mission],
+            children=[self.collaborative(), self.abort(), mission],
         )
         policy = py_trees.common.ParallelPolicy.SuccessOnSelected([mode], synchronise=False)
         return py_trees.composites.Parallel("walkaround", policy, children=[sensing, mode])

@@ -13,8 +13,10 @@ Commands: ``pause`` (the robot holds still, the mission keeps its place), ``resu
 ``take-over`` (the operator has the robot: the joystick drives it, or it follows the
 person they designate; the mission pauses), ``hand-back``, ``estop`` (the operator's
 e-stop: latched until ``reset-estop``), ``reset-estop`` (release a latched e-stop or
-bumper once the zone is clear; a one-shot request), ``abort`` (a safe stop for good; the
-run ends ``aborted`` with its report); with parameters: ``joystick`` (``v``, ``omega``:
+bumper once the zone is clear; a one-shot request), ``abort`` (the mission ends: the robot
+drives back to the handover point P on its own, a take-over or pause still pre-empts
+it, and the run ends ``aborted`` with its report; the e-stop is the way to stop it where
+it is); with parameters: ``joystick`` (``v``, ``omega``:
 a dead-man stream, stale after :data:`DEADMAN_S`), ``follow`` (``x``, ``y`` in A and
 optional ``distance``: follow the person there), ``answer`` (``choice``: the answer to
 the question the run asked, e.g. when trapped). ``GET /status`` answers what the run is
@@ -100,9 +102,6 @@ class OperatorState:
         params = params or {}
         parsed = _parse(command, params)
         with self._lock:
-            if self.aborted and command != "abort":
-                self.log.append((command, False))
-                return "the mission was aborted: nothing more to do"
             if command == "pause":
                 self.paused = True
             elif command == "resume":
@@ -137,8 +136,10 @@ class OperatorState:
                 self.question = None
                 if choice == "take-over":
                     self.taken_over = True
-            else:
+            else:  # abort: the robot returns to the handover point on its own
                 self.aborted = True
+                self.paused = self.taken_over = False
+                self._joystick = self._follow = None
             if command != "joystick":  # a stream of 10 a second: not a log line each
                 self.log.append((command, True))
         for listener in self.listeners:

@@ -265,6 +265,9 @@ class Runtime:
         operator = self.operator(now)
         if operator.abort and self.aborted_at is None:
             self.aborted_at = now
+            self.events.append(
+                Event(now, "abort-requested", {"reason": "the operator aborted the mission"})
+            )
         self.bb.set(SENSOR_FRAME.name, frame, overwrite=True)
         self.bb.set(OPERATOR.name, operator, overwrite=True)
         self.bb.set(COMMAND.name, VelocityCommand.stop(), overwrite=True)
@@ -464,8 +467,14 @@ class Runtime:
                 )
                 self._stop_safely(now, "fault", reason)
                 break
-            if self.aborted_at is not None:  # this tick's command was a stop
-                outcome, reason = "aborted", f"aborted by the operator at {self.aborted_at:.1f} s"
+            if self.aborted_at is not None and status != Status.RUNNING:
+                # the tree's abort branch took the robot back to the handover point P
+                outcome = "aborted"
+                reason = f"aborted by the operator at {self.aborted_at:.1f} s: " + (
+                    "back at the handover point P"
+                    if status == Status.SUCCESS
+                    else f"could not return to the handover point P ({self._failure_reason()})"
+                )
                 self.events.append(Event(now, "aborted", {"reason": reason}))
                 break
             if status == Status.SUCCESS:

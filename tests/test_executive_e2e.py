@@ -19,6 +19,7 @@ from executive.report import metrics, write_report
 from sim2d.scenario import load_scenario
 from tests.conftest import MISSIONS
 from tests.sim2d_helpers import make_scenario
+from tests.test_recording import assert_whole_run_recorded
 
 pytestmark = pytest.mark.slow
 
@@ -40,8 +41,12 @@ def _assert_mission_succeeded(run):
 
 @pytest.mark.parametrize("kind", ["a320", "b737-800"])
 def test_preflight_on_the_clear_apron(kind, tmp_path):
-    run = dry_run(load_scenario(MISSIONS / kind / "scenarios" / "clear-apron.xml"))
+    # the A320's run is recorded too: its MCAP holds every topic for the whole run (#15)
+    record = tmp_path / "run.mcap" if kind == "a320" else None
+    run = dry_run(load_scenario(MISSIONS / kind / "scenarios" / "clear-apron.xml"), record=record)
     _assert_mission_succeeded(run)
+    if record is not None:
+        assert_whole_run_recorded(run, record)
     out = write_report(run, tmp_path / "report")
     report = json.loads((out / "metrics.json").read_text())
     assert report["succeeded"] and report["checkpoints_reached"] == len(run.checkpoints)

@@ -49,6 +49,7 @@ from executive.core.frames import Pose2, wrap_angle
 from executive.core.loader import load_mission
 from executive.core.records import FollowRequest, OperatorRequests
 from executive.dryrun import dry_run
+from executive.operator import OperatorState
 from sim2d.robot import SimRobot
 from tests.conftest import MISSIONS
 from tests.sim2d_helpers import make_scenario
@@ -273,15 +274,21 @@ def test_the_collaborative_branch_follows_asks_or_holds():
     assert control.children[-1].name == "operator control"  # hold still by default
 
 
-def test_an_abort_is_never_followed():
+def test_an_abort_ends_the_follow_and_a_new_one_is_followed():
+    """The operator's abort clears its follow request (the robot goes back to P); a follow
+    asked for afterwards is the operator taking the robot again."""
     platform = load_mission(MISSIONS / "track" / "straight-run.xml").platform
     session = FollowSession(platform, 0.6, 0.02)
-    follow = FollowRequest(0.0, 3.0, 0.0, 2.0)
-    session.observe(OperatorRequests(take_over=True, follow=follow), None, None)
+    state = OperatorState()
+    state.apply("follow", {"x": 3.0, "y": 0.0, "distance": 2.0})
+    session.observe(state(0.0), None, None)
     assert session.requested
-    session.observe(OperatorRequests(abort=True, follow=follow), None, None)
-    session.observe(OperatorRequests(take_over=True, follow=follow), None, None)
+    state.apply("abort")
+    session.observe(state(0.1), None, None)
     assert not session.requested
+    state.apply("follow", {"x": 3.0, "y": 0.0, "distance": 2.0})
+    session.observe(state(0.2), None, None)
+    assert session.requested
 
 
 # -- end to end in sim2d ------------------------------------------------------------------------

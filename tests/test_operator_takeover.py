@@ -24,11 +24,12 @@ from hypothesis import strategies as st
 
 from behaviours.base import Controller, Guard, Node
 from behaviours.controllers.inspection import InspectItems
-from behaviours.guards.conditions import OperatorTakeOver
+from behaviours.guards.conditions import OperatorAborted, OperatorTakeOver
 from behaviours.keys import COMMAND, OPERATOR, PROGRESS, SENSOR_FRAME, ItemResult, MissionProgress
 from executive.compiler import GuardedBranch, ResumableSequence, compile_mission
 from executive.core.frames import Pose2
 from executive.core.loader import load_mission
+from executive.core.model import Frame
 from executive.core.records import OperatorRequests, SensorFrame, VelocityCommand
 from executive.dryrun import DryRun, dry_run
 from executive.report import write_report
@@ -245,9 +246,10 @@ def test_a_checkpoint_rewinds_to_its_own_navigation(lab_tree):
 
 def test_the_mode_selector_keeps_the_architecture_shape(lab_tree):
     mode = next(n for n in lab_tree.iterate() if n.name == "mode")
-    collaborative, mission = mode.children
+    collaborative, abort, mission = mode.children
     assert isinstance(collaborative, GuardedBranch)
     assert isinstance(collaborative.children[0], OperatorTakeOver)
+    assert isinstance(abort.children[0], OperatorAborted)  # then back to P
     assert mission.name == "mission" and isinstance(mission, ResumableSequence)
 
 
@@ -257,16 +259,18 @@ def _operator_guard(requests: OperatorRequests, guard: OperatorTakeOver) -> Stat
     return guard.status
 
 
-def test_the_operator_guard_follows_a_take_over_and_latches_an_abort():
+def test_the_operator_guards_follow_a_take_over_and_latch_an_abort():
     guard = OperatorTakeOver()
     assert _operator_guard(OperatorRequests(), guard) == Status.FAILURE
     assert _operator_guard(OperatorRequests(take_over=True), guard) == Status.SUCCESS
     assert guard.feedback_message == "operator request"
     assert _operator_guard(OperatorRequests(), guard) == Status.FAILURE  # handed back
-    assert _operator_guard(OperatorRequests(abort=True), guard) == Status.SUCCESS
+    aborted = OperatorAborted()
+    assert _operator_guard(OperatorRequests(take_over=True), aborted) == Status.FAILURE
+    assert _operator_guard(OperatorRequests(abort=True), aborted) == Status.SUCCESS
     for _ in range(3):  # one request is enough: the mission never resumes
-        assert _operator_guard(OperatorRequests(), guard) == Status.SUCCESS
-        assert guard.feedback_message == "operator abort"
+        assert _operator_guard(OperatorRequests(), aborted) == Status.SUCCESS
+        assert aborted.feedback_message == "operator abort"
 
 
 def test_inspection_re_entered_skips_the_items_already_recorded():
@@ -522,31 +526,33 @@ def test_repeated_take_overs_never_repeat_a_checkpoint(scenario, tmp_path):
     assert sum(e.detail["to"] == "operator control" for e in taken) == 8
 
 
+def _handover_a(run: DryRun) -> tuple[float, float]:
+    """Where the handover point P truly is, in A."""
+    wp = run.scenario.mission.handover
+    if wp.frame is Frame.AIRPORT:
+        return wp.x, wp.y
+    p = run.scenario.true_placement().pose_to_airport(Pose2(wp.x, wp.y, 0.0))
+    return p.x, p.y
+
+
 def _assert_aborted(run: DryRun, operator: Operator, tmp_path: Path) -> float:
+    """The abort ended the mission and the robot drove back to the handover point P on its
+    own (avoidance and the safety layer as on any leg), where the run ended ``aborted``."""
     t = operator.aborted_at
     assert t is not None
     result = run.result
     assert result.outcome == "aborted"
-    assert result.reason == f"aborted by the operator at {t:.1f} s"
-    assert any(e.kind == "aborted" for e in result.events)
-    # from the abort on the robot was only braked (at the safety layer's rate) and
-    # the last thing it received was a stop
-    last = [c for ts, c in run.robot.received if ts < t - 1e-9][-1]
-    after = [c for ts, c in run.robot.received if ts >= t - 1e-9]
-    assert after and after[-1].is_stop
-    for c in after:
-        assert abs(c.v) <= abs(last.v) + 1e-9 and abs(c.omega) <= abs(last.omega) + 1e-9
-    assert run.robot.time < t + 0.1  # the run ended at once
-    # no further motion: it stops within its braking distance and stays there
-    p0 = run.robot.world.robot_pose
-    path: list[Pose2] = []
-    for _ in range(30):
-        run.robot.advance(0.1)
-        path.append(run.robot.world.robot_pose)
-    a_max = run.scenario.mission.platform.max_acceleration
-    v = max((abs(c.v) for ts, c in run.robot.received if ts <= t), default=0.0)
-    assert math.hypot(path[-1].x - p0.x, path[-1].y - p0.y) <= v * v / (2 * a_max) + 0.02
-    assert math.hypot(path[-1].x - path[-10].x, path[-1].y - path[-10].y) < 1e-3
+    assert result.reason == f"aborted by the operator at {t:.1f} s: back at the handover point P"
+    kinds = [(e.kind, e.t) for e in result.events if e.kind in ("abort-requested", "aborted")]
+    assert [k for k, _ in kinds] == ["abort-requested", "aborted"] and kinds[0][1] == t
+    assert "go to P (abort)" in _controllers(run, t)
+    # ground truth: at P (the leg's 0.3 m tolerance and the localisation's error), no
+    # collision, no geofence breach, and the last command a stop
+    x, y = _handover_a(run)
+    end = run.robot.world.robot_pose
+    assert math.hypot(end.x - x, end.y - y) < 0.4, (end, (x, y))
+    assert not run.robot.world.collisions and not run.breaches
+    assert run.robot.received[-1][1].is_stop
     # the journal ends with the outcome, the report is written
     assert _journal(tmp_path)[-1]["outcome"] == "aborted"
     out = write_report(run, tmp_path / "report")
@@ -557,7 +563,7 @@ def _assert_aborted(run: DryRun, operator: Operator, tmp_path: Path) -> float:
 
 
 @pytest.mark.slow
-def test_abort_mid_leg_stops_the_robot_and_reports_aborted(scenario, tmp_path):
+def test_abort_mid_leg_returns_to_the_handover_point_and_reports_aborted(scenario, tmp_path):
     operator = Operator(lambda p: p.completed == ("CP1",), abort=True, delay=3.0)
     run = _dry_run(scenario, operator, tmp_path)
     _assert_aborted(run, operator, tmp_path)
@@ -566,17 +572,23 @@ def test_abort_mid_leg_stops_the_robot_and_reports_aborted(scenario, tmp_path):
 
 
 @pytest.mark.slow
-def test_abort_during_a_take_over_ends_the_mission(scenario, tmp_path):
-    class TakeOverThenAbort(Operator):
-        """Takes over at 3 s, aborts at 6 s while still holding the robot."""
+def test_a_take_over_pre_empts_the_return_after_an_abort(scenario, tmp_path):
+    class AbortThenTakeOver(Operator):
+        """Aborts 3 s after CP1, takes the robot over 2 s later for 6 s (it holds still),
+        then hands it back: the return to P goes on."""
 
         def __call__(self, t: float) -> OperatorRequests:
-            abort = t >= 6.0 and self.aborted_at is None
-            if abort:
-                self.aborted_at = t
-            return OperatorRequests(take_over=t >= 3.0, abort=abort)
+            if self.aborted_at is None:
+                requests = super().__call__(t)
+                if requests.abort:
+                    self.windows = [(t + 2.0, t + 8.0)]
+                return requests
+            start, end = self.windows[0]
+            return OperatorRequests(take_over=start <= t < end)
 
-    operator = TakeOverThenAbort(lambda p: False)
+    operator = AbortThenTakeOver(lambda p: p.completed == ("CP1",), abort=True, delay=3.0)
     run = _dry_run(scenario, operator, tmp_path)
-    _assert_aborted(run, operator, tmp_path)
-    assert _controllers(run, 0.0)[-1] == "operator control"  # never handed back
+    t = _assert_aborted(run, operator, tmp_path)
+    assert _controllers(run, t)[:3] == ["go to P (abort)", "operator control", "go to P (abort)"]
+    start, end = operator.windows[0]
+    assert _moved(run, start + 1.0, end) < 0.02  # held still while the operator had it

@@ -117,10 +117,13 @@ def test_operator_state_semantics():
     state.apply("reset-estop")
     assert state(0.0).reset_estop is True
     assert state(0.1).reset_estop is False  # a one-shot request
-    state.apply("abort")
-    assert state(0.2).abort is True
-    assert "aborted" in state.apply("resume")  # nothing undoes an abort
+    state.apply("take-over")
+    state.apply("abort")  # the robot goes back to P on its own: the take-over ends
+    assert state(0.2).abort is True and state(0.2).take_over is False
+    assert state.apply("resume") == "resume: accepted"  # nothing undoes an abort
     assert state(0.3).abort is True
+    state.apply("take-over")  # but the operator can still take the robot on the way
+    assert state(0.4).take_over is True and state(0.4).abort is True
     with pytest.raises(ValueError, match="unknown command"):
         state.apply("self-destruct")
 

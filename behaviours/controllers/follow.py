@@ -15,8 +15,8 @@ estimate, once per tick whichever node asks first. Its nodes:
 
 The guards' feedback says which track, which gap, lost or not: the runtime logs it with
 every controller switch (``follow operator``, ``hold: operator lost``). An operator's
-abort is latched here too (as in :class:`behaviours.guards.conditions.OperatorTakeOver`):
-after it, nobody is followed.
+abort ends the follow request it finds (the operator's state clears it); a follow asked
+for after the abort is followed (the operator has the robot again).
 """
 
 from __future__ import annotations
@@ -91,14 +91,13 @@ class FollowSession:
         )
         self.follower = OperatorFollower(self.params)
         self.request: tuple[float, float, float] | None = None
-        self.aborted = False
         self.losses = 0
         self._stamp: float | None = None
         self.last: FollowCommand | None = None
 
     @property
     def requested(self) -> bool:
-        return self.request is not None and not self.aborted
+        return self.request is not None
 
     @property
     def lost(self) -> bool:
@@ -108,8 +107,7 @@ class FollowSession:
         self, operator: OperatorRequests, pose: PoseEstimate | None, obstacles: Obstacles | None
     ) -> None:
         """Take this tick's request and tracks (once per obstacle stamp)."""
-        self.aborted = self.aborted or operator.abort
-        follow = None if self.aborted else operator.follow
+        follow = operator.follow
         if follow is None:
             if self.request is not None:
                 self.follower.cancel()

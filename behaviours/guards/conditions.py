@@ -205,27 +205,38 @@ class Reached(Guard):
 
 
 class OperatorTakeOver(Guard):
-    """The operator has the robot: a take-over (collaborative mode) or an abort.
+    """The operator has the robot (collaborative mode): a take-over or a pause.
 
-    A take-over lasts as long as the operator asks for it; its branch pre-empts the
-    mission, which pauses and resumes at the hand-back (:class:`ResumableSequence` in the
-    compiler). An abort is latched: one request is enough and the mission never resumes
-    (the runtime ends the run as ``aborted``); until then the robot is held still.
+    It lasts as long as the operator asks for it; its branch pre-empts the mission (and
+    the return after an abort), which resumes where it was at the hand-back
+    (:class:`ResumableSequence` in the compiler).
     """
 
     reads = (OPERATOR,)
 
     def __init__(self, name: str = "operator takes over?") -> None:
         super().__init__(name)
+
+    def update(self) -> Status:
+        operator: OperatorRequests = self.read(OPERATOR, OperatorRequests())
+        self.feedback_message = "operator request" if operator.take_over else "no request"
+        return Status.SUCCESS if operator.take_over else Status.FAILURE
+
+
+class OperatorAborted(Guard):
+    """The operator aborted the mission (latched: one request is enough, it never
+    resumes in this run). Its branch takes the robot back to the handover point P
+    (seed 000 fig. 2.21's way out of the inspection); the runtime then ends the run as
+    ``aborted``. A take-over still pre-empts the return."""
+
+    reads = (OPERATOR,)
+
+    def __init__(self, name: str = "operator aborted?") -> None:
+        super().__init__(name)
         self.aborted = False
 
     def update(self) -> Status:
         operator: OperatorRequests = self.read(OPERATOR, OperatorRequests())
         self.aborted = self.aborted or operator.abort
-        if self.aborted:
-            self.feedback_message = "operator abort"
-        elif operator.take_over:
-            self.feedback_message = "operator request"
-        else:
-            self.feedback_message = "no request"
-        return Status.SUCCESS if self.aborted or operator.take_over else Status.FAILURE
+        self.feedback_message = "operator abort" if self.aborted else "no abort"
+        return Status.SUCCESS if self.aborted else Status.FAILURE

@@ -146,7 +146,7 @@ $("pause").onclick = () => command("pause");
 $("resume").onclick = () => command("resume");
 $("takeover").onclick = () => command("take-over");
 $("handback").onclick = () => command("hand-back");
-$("abort").onclick = () => { if (confirm("Abort the mission?")) command("abort"); };
+$("abort").onclick = () => { if (confirm("Abort the mission? The robot drives back to the handover point P.")) command("abort"); };
 $("claim").onclick = () => send({ type: "claim" });
 $("follow").onclick = () => { hud.pickFollow = true; toast("tap the person to follow"); };
 map.addEventListener("pointerdown", (event) => {
