@@ -83,6 +83,7 @@ from behaviours.controllers.motion import (
     EStopHold,
     GoToGoalController,
     HoldStill,
+    Rejoined,
 )
 from behaviours.controllers.servo import (
     IBVS,
@@ -103,6 +104,7 @@ from behaviours.guards.conditions import (
     OperatorTakeOver,
     PoseNotGoodEnough,
     Reached,
+    RejoinAfterHandBack,
 )
 from behaviours.guards.operator_help import AskWhenTrapped, SkipCheckpoint, SkipRequests
 from behaviours.keys import COMMAND, EXTERNAL_KEYS, MissionProgress
@@ -139,6 +141,11 @@ the servo starts with is, to first order, the one it ends with."""
 
 SERVO_LOST_GRACE = 4.0
 """Seconds a servo navigation holds still for lost features before metric go-to-goal."""
+
+VICINITY_MARGIN = 3.0
+"""Metres beyond P's own distance from the airframe within which a robot handed back by
+the operator is "in P's close vicinity" (fig. 2.21) and resumes its phase; farther out it
+goes back to P first. Three metres: about two robot lengths, the approach's last leg."""
 
 SERVO_SPEED = 0.3
 """Top speed (m/s) of visual servoing: the heading settles within a short run."""
@@ -320,6 +327,8 @@ class _Builder:
         self.avoidance_policies: list[AvoidancePolicy] = []
         self.servo_sessions: list[ServoSession] = []
         self.skips = SkipRequests()
+        self.take_over = OperatorTakeOver()
+        """The collaborative mode's guard; its hand-backs drive fig. 2.21's rejoin."""
         nav = mission.navigation
         platform = mission.platform
         self.checkpoint_tolerance = (
@@ -695,7 +704,7 @@ class _Builder:
                 HoldStill("operator control"),
             ],
         )
-        return GuardedBranch("collaborative", OperatorTakeOver(), control)
+        return GuardedBranch("collaborative", self.take_over, control)
 
     def abort(self) -> py_trees.behaviour.Behaviour:
         """After the operator's abort: back to the handover point P, then the run ends
@@ -706,6 +715,23 @@ class _Builder:
         )
         return py_trees.composites.Sequence(
             "abort: back to P", memory=False, children=[OperatorAborted(), back]
+        )
+
+    def rejoin(self) -> py_trees.behaviour.Behaviour:
+        """Fig. 2.21's surrender transitions (:class:`RejoinAfterHandBack`): handed back
+        out of P's vicinity after the approach, the robot goes back to P first."""
+        m = self.mission
+        nominal = m.nominal_placement()
+        airframe = unary_union(
+            [to_shapely(s) for s in (*m.aircraft.outline, *m.aircraft.footprint)]
+        )
+        p = self.waypoint_goal(m.handover)
+        p_f = p.pose if p.frame is Frame.AIRCRAFT else nominal.pose_to_aircraft(p.pose)
+        reach = float(airframe.distance(Point(p_f.x, p_f.y))) + VICINITY_MARGIN
+        guard = RejoinAfterHandBack(self.take_over, airframe, reach, nominal)
+        back = self.navigate("P (rejoin)", p, False, (0.3, None))
+        return py_trees.composites.Sequence(
+            "rejoin: back to P", memory=False, children=[guard, back, Rejoined(guard)]
         )
 
     def build(self) -> py_trees.behaviour.Behaviour:
@@ -731,7 +757,7 @@ class _Builder:
         mode = py_trees.composites.Selector(
             "mode",
             memory=False,
-            children=[self.collaborative(), self.abort(), mission],
+            children=[self.collaborative(), self.abort(), self.rejoin(), mission],
         )
         policy = py_trees.common.ParallelPolicy.SuccessOnSelected([mode], synchronise=False)
         return py_trees.composites.Parallel("walkaround", policy, children=[sensing, mode])

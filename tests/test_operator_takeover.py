@@ -24,13 +24,18 @@ from hypothesis import strategies as st
 
 from behaviours.base import Controller, Guard, Node
 from behaviours.controllers.inspection import InspectItems
-from behaviours.guards.conditions import OperatorAborted, OperatorTakeOver
+from behaviours.guards.conditions import OperatorAborted, OperatorTakeOver, RejoinAfterHandBack
 from behaviours.keys import COMMAND, OPERATOR, PROGRESS, SENSOR_FRAME, ItemResult, MissionProgress
 from executive.compiler import GuardedBranch, ResumableSequence, compile_mission
-from executive.core.frames import Pose2
+from executive.core.frames import Pose2, wrap_angle
 from executive.core.loader import load_mission
 from executive.core.model import Frame
-from executive.core.records import OperatorRequests, SensorFrame, VelocityCommand
+from executive.core.records import (
+    JoystickCommand,
+    OperatorRequests,
+    SensorFrame,
+    VelocityCommand,
+)
 from executive.dryrun import DryRun, dry_run
 from executive.report import write_report
 from sim2d.robot import SimRobot
@@ -246,10 +251,11 @@ def test_a_checkpoint_rewinds_to_its_own_navigation(lab_tree):
 
 def test_the_mode_selector_keeps_the_architecture_shape(lab_tree):
     mode = next(n for n in lab_tree.iterate() if n.name == "mode")
-    collaborative, abort, mission = mode.children
+    collaborative, abort, rejoin, mission = mode.children
     assert isinstance(collaborative, GuardedBranch)
     assert isinstance(collaborative.children[0], OperatorTakeOver)
     assert isinstance(abort.children[0], OperatorAborted)  # then back to P
+    assert isinstance(rejoin.children[0], RejoinAfterHandBack)  # fig. 2.21
     assert mission.name == "mission" and isinstance(mission, ResumableSequence)
 
 
@@ -366,7 +372,7 @@ def scenario() -> Scenario:
 
 
 def _dry_run(scenario: Scenario, operator: Operator, tmp_path: Path, **kw) -> DryRun:
-    robot = RecordingRobot(scenario)
+    robot = kw.pop("robot", None) or RecordingRobot(scenario)
     return dry_run(
         scenario,
         operator=operator,
@@ -560,6 +566,60 @@ def _assert_aborted(run: DryRun, operator: Operator, tmp_path: Path) -> float:
     assert metrics["outcome"] == "aborted"
     assert not run.succeeded and run.first_cause == result.reason  # the one-line summary
     return t
+
+
+class LeadAway:
+    """Takes the robot over 1 s after CP1 and leads it away from the fence with the
+    joystick, as an operator watching it would: turn to face -y (away from the fence),
+    drive ``drive`` s at 0.5 m/s, then hand back."""
+
+    def __init__(self, robot: SimRobot, drive: float) -> None:
+        self.robot, self.drive = robot, drive
+        self.window: tuple[float, float] | None = None
+        self.driving_since: float | None = None
+
+    def __call__(self, t: float) -> OperatorRequests:
+        if self.window is None and _progress().completed == ("CP1",):
+            self.window = (t + 1.0, math.inf)
+        if self.window is None or not self.window[0] <= t < self.window[1]:
+            return OperatorRequests()
+        error = wrap_angle(-math.pi / 2 - self.robot.world.robot_pose.theta)
+        if self.driving_since is None and abs(error) < 0.05:
+            self.driving_since = t
+        v = 0.5 if self.driving_since is not None else 0.0
+        if self.driving_since is not None and t >= self.driving_since + self.drive:
+            self.window = (self.window[0], t)  # hand back
+            return OperatorRequests()
+        omega = max(-0.6, min(0.6, 2.0 * error))
+        return OperatorRequests(take_over=True, joystick=JoystickCommand(t, v, omega))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("drive", [4.0, 14.0])
+def test_the_surrender_transitions_of_fig_2_21(scenario, tmp_path, drive):
+    """Handed back in P's close vicinity (the band round the mock-up that P lies in: 6 m
+    from the fence + 3 m) the robot goes on with its checkpoint; led out of it, it goes
+    back to P first, then on: the mission completes either way, each checkpoint once,
+    within tolerance."""
+    robot = RecordingRobot(scenario)
+    operator = LeadAway(robot, drive)
+    run = _dry_run(scenario, operator, tmp_path, robot=robot)
+    assert operator.window is not None and operator.window[1] < math.inf
+    _assert_resumed_mission(run, tmp_path)
+    after = _controllers(run, operator.window[1])
+    switches = [e for e in run.result.events if e.kind == "controller"]
+    rejoin = [e for e in switches if e.detail["to"] == "go to P (rejoin)"]
+    if drive < 10.0:  # ~3 m + 2 m from the fence: within 9 m
+        assert after[:1] == ["go to CP2"] and not rejoin
+    else:  # ~3 m + 7 m: out of it
+        assert after[:3] == ["go to P (rejoin)", "rejoined at P", "go to CP2"], after
+        # it really went back to P (ground truth) before going on to CP2
+        x, y = _handover_a(run)
+        t_cp2 = next(
+            e.t for e in switches if e.detail["to"] == "go to CP2" and e.t > operator.window[1]
+        )
+        at = min(math.hypot(s.true.x - x, s.true.y - y) for s in run.samples if s.t <= t_cp2)
+        assert at < 0.4
 
 
 @pytest.mark.slow

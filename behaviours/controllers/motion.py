@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping
+from typing import TYPE_CHECKING
 
 import py_trees
 
@@ -20,6 +21,9 @@ from executive.core.records import (
     SensorFrame,
     VelocityCommand,
 )
+
+if TYPE_CHECKING:
+    from behaviours.guards.conditions import RejoinAfterHandBack
 
 Status = py_trees.common.Status
 
@@ -48,6 +52,25 @@ class HoldStill(Controller):
 
     def update(self) -> Status:
         self.write(COMMAND, VelocityCommand.stop())
+        return Status.RUNNING
+
+
+class Rejoined(Controller):
+    """Ends the rejoin at P after a hand-back (fig. 2.21,
+    :class:`behaviours.guards.conditions.RejoinAfterHandBack`): holds the robot for this
+    tick and releases the guard; the next tick resumes the paused phase. RUNNING, not
+    SUCCESS: the mode selector's success would end the run."""
+
+    writes = (COMMAND,)
+
+    def __init__(self, guard: RejoinAfterHandBack, name: str = "rejoined at P") -> None:
+        super().__init__(name)
+        self.guard = guard
+
+    def update(self) -> Status:
+        self.guard.rejoined()
+        self.write(COMMAND, VelocityCommand.stop())
+        self.feedback_message = "at P: the paused phase resumes"
         return Status.RUNNING
 
 

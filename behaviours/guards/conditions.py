@@ -9,12 +9,14 @@ from __future__ import annotations
 import math
 
 import py_trees
+from shapely.geometry import Point
+from shapely.geometry.base import BaseGeometry
 
 from behaviours.base import Guard
 from behaviours.goals import Goal
-from behaviours.keys import OBSTACLES, OPERATOR, POSE, SENSOR_FRAME
+from behaviours.keys import OBSTACLES, OPERATOR, POSE, PROGRESS, SENSOR_FRAME, MissionProgress
 from behaviours.laws.estop import EStopLatch
-from executive.core.frames import wrap_angle
+from executive.core.frames import AircraftPlacement, wrap_angle
 from executive.core.records import (
     FrameReference,
     Obstacles,
@@ -216,9 +218,15 @@ class OperatorTakeOver(Guard):
 
     def __init__(self, name: str = "operator takes over?") -> None:
         super().__init__(name)
+        self.hand_backs = 0
+        """How many times a take-over (or pause) ended (:class:`RejoinAfterHandBack`)."""
+        self._taken = False
 
     def update(self) -> Status:
         operator: OperatorRequests = self.read(OPERATOR, OperatorRequests())
+        if self._taken and not operator.take_over:
+            self.hand_backs += 1
+        self._taken = operator.take_over
         self.feedback_message = "operator request" if operator.take_over else "no request"
         return Status.SUCCESS if operator.take_over else Status.FAILURE
 
@@ -240,3 +248,66 @@ class OperatorAborted(Guard):
         self.aborted = self.aborted or operator.abort
         self.feedback_message = "operator abort" if self.aborted else "no abort"
         return Status.SUCCESS if self.aborted else Status.FAILURE
+
+
+class RejoinAfterHandBack(Guard):
+    """The surrender transitions of seed 000 fig. 2.21, at the operator's hand-back.
+
+    "Operator surrenders robot control - point P detected in close vicinity": the paused
+    phase resumes (the mission's :class:`ResumableSequence` does that by itself).
+    "Operator surrenders robot control - point P can not be found": approach mode, back to
+    P first. P is the handover point where the approach ends and the inspection begins;
+    "close vicinity" is the band round the airframe that P itself lies in: a robot handed
+    back no farther from the airframe than P is (plus ``margin``) is where the inspection
+    goes on, one led farther out goes back to P before the checkpoint it was on.
+
+    SUCCESS (latched) from a hand-back of the take-over ``take_over`` (its
+    :attr:`OperatorTakeOver.hand_backs`) while the mission is past its approach and the
+    robot is out of the vicinity, until :meth:`rejoined`; FAILURE otherwise.
+    """
+
+    reads = (POSE,)
+    reads_previous = (PROGRESS,)
+
+    def __init__(
+        self,
+        take_over: OperatorTakeOver,
+        airframe_f: BaseGeometry,
+        reach: float,
+        nominal: AircraftPlacement,
+        name: str = "P not in close vicinity?",
+    ) -> None:
+        super().__init__(name)
+        self.take_over = take_over
+        self.airframe_f = airframe_f
+        self.reach = reach
+        self.nominal = nominal
+        self.active = False
+        self._seen = 0
+
+    def rejoined(self) -> None:
+        """P was reached: the paused phase resumes."""
+        self.active = False
+
+    def distance(self, pose: PoseEstimate) -> float:
+        """The robot's distance (m) to the airframe, with the pose estimate's placement."""
+        placement = pose.placement or self.nominal
+        x, y = placement.to_aircraft_xy([[pose.pose_a.x, pose.pose_a.y]])[0]
+        return float(self.airframe_f.distance(Point(x, y)))
+
+    def update(self) -> Status:
+        hand_backs = self.take_over.hand_backs
+        if hand_backs != self._seen and not self.active:
+            self._seen = hand_backs
+            progress: MissionProgress | None = self.read(PROGRESS, None)
+            pose: PoseEstimate | None = self.read(POSE, None)
+            past_approach = progress is not None and progress.phase in ("inspection", "return")
+            if past_approach and pose is not None:
+                d = self.distance(pose)
+                self.active = d > self.reach
+                self.feedback_message = (
+                    f"handed back {d:.1f} m from the airframe, P is within {self.reach:.1f} m: "
+                    + ("P not found close by, back to P" if self.active else "resume")
+                )
+        self._seen = hand_backs
+        return Status.SUCCESS if self.active else Status.FAILURE
