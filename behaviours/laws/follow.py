@@ -45,9 +45,12 @@ controller was AKKA's, on the ROS navigation stack) and is derived here:
   its distance), ``omega = v kappa``, the speed lowered where the arc would need more than
   ``max_omega``; beyond ``align_limit`` a skid-steer turns on the spot first.
 
-Obstacle avoidance (Table 2.3 lists it beside the follower) is the trail's own (the
-robot goes where a person went) plus the safety layer behind every command: e-stop at
-r_ES, slowdown within r_OA-trigger, geofence, platform limits.
+Obstacle avoidance (Table 2.3 lists it beside the follower): static obstacles are the
+trail's own (the robot goes where a person went); another person or vehicle crossing is
+yielded to (:func:`yield_speed`: velocity obstacles along the trail, the robot slows or
+waits rather than swerves off the path the operator took between parked vehicles); and
+the safety layer is behind every command: e-stop at r_ES, slowdown within r_OA-trigger,
+geofence, platform limits.
 
 Frames: positions and velocities in A (x east, y north), the robot pose ``Pose2`` in A
 (point M, heading). SI units.
@@ -61,6 +64,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from behaviours.laws.velocity_obstacles import MovingDisc, time_to_collision, velocity_vector
 from executive.core.frames import FloatArray, Pose2, wrap_angle
 
 SEARCHING = "searching"
@@ -109,6 +113,10 @@ class FollowParams:
     min_person_speed: float = 0.1
     lost_after: float = 1.0
     acquire_timeout: float = 2.0
+    yield_horizon: float = 3.0
+    """A crossing with another moving person or vehicle predicted within this time (s)
+    slows the robot to the speed that lets it pass first (:func:`yield_speed`)."""
+    yield_steps: int = 10
 
     def __post_init__(self) -> None:
         for name in ("length", "width", "max_speed", "max_omega", "brake", "period"):
@@ -180,6 +188,20 @@ def reassociation_gate(unseen: float, params: FollowParams) -> float:
     """Radius (m) around the predicted position within which a new track is taken to be
     the person, ``unseen`` s after they were last seen."""
     return min(params.max_gate, params.gate + params.max_person_speed * max(0.0, unseen))
+
+
+def still_the_person(
+    track: PersonTrack, last: PersonTrack, dt: float, params: FollowParams
+) -> bool:
+    """Whether the track that kept the person's id can still be them: person-like (not
+    a line, no bigger than a person) and within :func:`reassociation_gate` of where they
+    were heading. A tracker may hand an occluded person's id to the cluster next to them
+    (a vehicle's side merged while someone crossed between): the id alone is not proof."""
+    if not could_be_person(track, params.max_person_size):
+        return False
+    px = last.position[0] + last.velocity[0] * dt
+    py = last.position[1] + last.velocity[1] * dt
+    return math.dist(track.position, (px, py)) <= reassociation_gate(dt, params)
 
 
 def reassociate(
@@ -371,6 +393,39 @@ def pursuit_command(
     return v, v * kappa
 
 
+def yield_speed(
+    robot: Pose2,
+    v: float,
+    omega: float,
+    movers: Sequence[MovingDisc],
+    params: FollowParams,
+) -> tuple[float, float]:
+    """Obstacle avoidance on the trail (Table 2.3): the largest speed, ``v`` scaled down
+    in ``yield_steps`` steps with the arc kept (``omega`` scaled alike), whose velocity
+    obstacles [Fiorini and Shiller 1998; :mod:`behaviours.laws.velocity_obstacles`]
+    against the other movers are clear for ``yield_horizon`` s. The discs are the movers
+    grown by the robot's circumscribed radius plus r_ES (the e-stop's distance), so a
+    crossing the robot yields to stays outside r_ES. The robot stays on the trail (where
+    the operator walked, between parked vehicles): it waits rather than swerves. When no
+    speed is clear (a mover heading at the robot), the one with the latest contact,
+    the slowest among equals."""
+    if v <= 0.0 or not movers:
+        return v, omega
+    radius = 0.5 * math.hypot(params.length, params.width) + params.r_es
+    xy = np.array([robot.x, robot.y])
+    best, latest = (0.0, 0.0), -1.0
+    for k in range(params.yield_steps, -1, -1):
+        share = k / params.yield_steps
+        vk, wk = v * share, omega * share
+        u = velocity_vector(robot.theta, vk, wk, 0.5)
+        ttc = min(time_to_collision(xy, u, m, radius) for m in movers)
+        if ttc >= params.yield_horizon:
+            return vk, wk
+        if ttc >= latest:  # ties go to the slower one (k falls)
+            best, latest = (vk, wk), ttc
+    return best
+
+
 # -- the follower -------------------------------------------------------------------------------
 class OperatorFollower:
     """The follower: choose the person at the designated point, keep them, lay the trail,
@@ -397,6 +452,8 @@ class OperatorFollower:
         self.reason = "no person designated"
         self.events: list[tuple[float, str, str]] = []
         self._others: frozenset[int] = frozenset()
+        self.movers: tuple[MovingDisc, ...] = ()
+        """The other moving tracks of the last scan (A): :func:`yield_speed`."""
 
     @property
     def track_id(self) -> int | None:
@@ -441,6 +498,10 @@ class OperatorFollower:
             self._adopt(t, found, tracks, "acquired")
             return
         same = next((k for k in tracks if k.ident == self.person.ident), None)
+        if same is not None and not still_the_person(same, self.person, t - self.last_seen, p):
+            if self.state == FOLLOWING:  # once, not every scan
+                self._event(t, "id taken", f"track {same.ident} is no longer person-like here")
+            same = None
         if same is None:
             unseen = t - self.last_seen
             found = reassociate(tracks, self.person, unseen, p, self._others)
@@ -464,6 +525,11 @@ class OperatorFollower:
         self.last_seen = t
         self.state = FOLLOWING
         self._others = frozenset(k.ident for k in tracks if k.ident != track.ident)
+        self.movers = tuple(
+            MovingDisc(k.position, k.velocity, k.size)
+            for k in tracks
+            if k.ident != track.ident and math.hypot(*k.velocity) >= self.params.min_person_speed
+        )
         self.trail.add(track.position)
         self.reason = f"track {track.ident}"
 
@@ -483,5 +549,9 @@ class OperatorFollower:
         detour = self.trail.length(here, person.position) - math.dist(here, person.position)
         v = follow_speed(gap, self.distance, v_away, p, detour)
         v, omega = pursuit_command(robot, target, v, p)
+        free = v
+        v, omega = yield_speed(robot, v, omega, self.movers, p)
         why = f"{self.reason}: gap {gap:.2f} m (set {self.distance:.2f} m)"
+        if v < free:
+            why += f", yielding to a crossing ({v:.2f} of {free:.2f} m/s)"
         return FollowCommand(v, omega, gap, self.state, why)
