@@ -451,7 +451,8 @@ class OperatorFollower:
         self.now = 0.0
         self.reason = "no person designated"
         self.events: list[tuple[float, str, str]] = []
-        self._others: frozenset[int] = frozenset()
+        self._others: dict[int, tuple[float, float]] = {}
+        """The other tracks beside the person when last seen: id -> position (A)."""
         self.movers: tuple[MovingDisc, ...] = ()
         """The other moving tracks of the last scan (A): :func:`yield_speed`."""
 
@@ -504,7 +505,7 @@ class OperatorFollower:
             same = None
         if same is None:
             unseen = t - self.last_seen
-            found = reassociate(tracks, self.person, unseen, p, self._others)
+            found = reassociate(tracks, self.person, unseen, p, self._neighbours(tracks, unseen))
             if found is not None:
                 self._event(t, "re-associated", f"track {self.person.ident} -> {found.ident}")
                 self._adopt(t, found, tracks, "re-associated")
@@ -517,6 +518,19 @@ class OperatorFollower:
             return
         self._adopt(t, same, tracks, "")
 
+    def _neighbours(self, tracks: Sequence[PersonTrack], unseen: float) -> frozenset[int]:
+        """The ids that are still the neighbours they were beside the person: each within
+        :func:`reassociation_gate` of where it was. An id that jumped farther is no longer
+        that neighbour: the tracker swapped it (a person's id handed to a parked car's
+        blob and the car's id to the person, as they passed each other in the scan), and
+        it may be the person again."""
+        gate = reassociation_gate(unseen, self.params)
+        return frozenset(
+            k.ident
+            for k in tracks
+            if k.ident in self._others and math.dist(k.position, self._others[k.ident]) <= gate
+        )
+
     def _adopt(self, t: float, track: PersonTrack, tracks: Sequence[PersonTrack], why: str) -> None:
         if why == "acquired":
             off = math.dist(track.position, self.tap or track.position)
@@ -524,7 +538,7 @@ class OperatorFollower:
         self.person = track
         self.last_seen = t
         self.state = FOLLOWING
-        self._others = frozenset(k.ident for k in tracks if k.ident != track.ident)
+        self._others = {k.ident: k.position for k in tracks if k.ident != track.ident}
         self.movers = tuple(
             MovingDisc(k.position, k.velocity, k.size)
             for k in tracks
