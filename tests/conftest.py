@@ -1,5 +1,7 @@
 """Shared fixtures and paths."""
 
+import time
+from collections.abc import Callable
 from pathlib import Path
 
 import py_trees
@@ -35,3 +37,14 @@ def blackboard_writer(*keys):
     for key in keys:
         client.register_key(key=key.name, access=py_trees.common.Access.WRITE)
     return client
+
+
+def wait_until(predicate: Callable[[], object], timeout: float, what: str) -> None:
+    """Poll ``predicate`` every 50 ms of wall time (another process or thread moves the
+    world); fail naming ``what`` after ``timeout`` seconds."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return
+        time.sleep(0.05)
+    raise AssertionError(f"timed out waiting for {what}")

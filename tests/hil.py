@@ -8,12 +8,11 @@ import os
 import socket
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 from executive.hil import TRUTH_FILE, TruthLog, judge_hil
 from sim2d.scenario import load_scenario
-from tests.conftest import MISSIONS
+from tests.conftest import MISSIONS, wait_until
 
 LAB_MISSION = MISSIONS / "lab" / "visual-servoing.xml"
 LAB_CLEAR = MISSIONS / "lab" / "scenarios" / "clear-apron.xml"
@@ -103,12 +102,7 @@ class Hil:
         return judge_hil(load_scenario(self.scenario), self.truth(), self.metrics())
 
     def wait_for(self, predicate, timeout: float, what: str) -> None:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if predicate():
-                return
-            time.sleep(0.05)
-        raise AssertionError(f"timed out waiting for {what}")
+        wait_until(predicate, timeout, what)
 
     def journal_completed(self) -> list[str]:
         path = self.run_out / "journal.jsonl"

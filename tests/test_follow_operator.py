@@ -11,6 +11,7 @@ only round corners (the measured error includes the corners).
 
 import dataclasses
 import math
+from functools import partial
 
 import numpy as np
 import py_trees
@@ -18,6 +19,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+import behaviours.controllers.follow as follow_controllers
 from behaviours.controllers.follow import (
     AskOperator,
     FollowOperator,
@@ -505,18 +507,8 @@ def test_follow_the_operator_60_m_among_parked_vehicles(tmp_path):
     assert np.hypot(*(log[-1, 4:6] - WALKER_PATH[-1])) < 0.1  # the walk was finished
 
 
-def _crossing_run(tmp_path, duration: float, yield_horizon: float | None = None):
-    body = CROSSING.replace("CROSS", "4.0")
-    if yield_horizon is None:
-        return _follow_run(tmp_path, body, duration)
-    import behaviours.controllers.follow as follow_module
-
-    real = follow_module.FollowParams
-    follow_module.FollowParams = lambda **kw: real(**kw, yield_horizon=yield_horizon)
-    try:
-        return _follow_run(tmp_path, body, duration)
-    finally:
-        follow_module.FollowParams = real
+def _crossing_run(tmp_path, duration: float):
+    return _follow_run(tmp_path, CROSSING.replace("CROSS", "4.0"), duration)
 
 
 def _estops(run) -> int:
@@ -524,7 +516,7 @@ def _estops(run) -> int:
 
 
 @pytest.mark.slow
-def test_someone_crossing_between_operator_and_robot_is_yielded_to(tmp_path):
+def test_someone_crossing_between_operator_and_robot_is_yielded_to(tmp_path, monkeypatch):
     """Obstacle avoidance in the collaborative mode (Table 2.3): a person crossing the
     trail between the operator and the robot at 1 m/s makes it wait until they have
     passed, with no e-stop and everything outside r_ES; without yielding (horizon 0) the
@@ -543,7 +535,9 @@ def test_someone_crossing_between_operator_and_robot_is_yielded_to(tmp_path):
     gaps = _true_gaps(log, mission.platform.length, mission.platform.width, 0.3)
     assert np.hypot(*(log[-1, 4:6] - WALKER_PATH[-1])) < 0.1  # the walk was finished
     assert abs(gaps[-1] - SET_GAP) < 0.5  # and followed to its end
-    blind, _, _ = _crossing_run(tmp_path / "blind", 20.0, yield_horizon=0.0)
+    # the same crossing with a follower that never yields (horizon 0)
+    monkeypatch.setattr(follow_controllers, "FollowParams", partial(FollowParams, yield_horizon=0))
+    blind, _, _ = _crossing_run(tmp_path / "blind", 20.0)
     blind_clearance = min(s.clearance for s in blind.samples)
     print(f"not yielding: min clearance {blind_clearance:.2f} m, e-stops {_estops(blind)}")
     assert _estops(blind) > 0 or blind_clearance <= mission.safety.r_es

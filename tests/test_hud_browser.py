@@ -15,7 +15,7 @@ import pytest
 
 from executive.hud.live import LiveDryRun
 from sim2d.scenario import load_scenario
-from tests.conftest import MISSIONS
+from tests.conftest import MISSIONS, wait_until
 
 pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("hil")]
 
@@ -54,15 +54,6 @@ def _moved(live: LiveDryRun, seconds: float) -> float:
     return math.hypot(x1 - x0, y1 - y0)
 
 
-def _wait(predicate, timeout: float, what: str) -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return
-        time.sleep(0.05)
-    raise AssertionError(f"timed out waiting for {what}")
-
-
 def _click(page, selector: str) -> None:
     page.click(selector)
     time.sleep(0.3)
@@ -99,7 +90,7 @@ def test_the_hud_drives_a_live_dry_run(browser, tmp_path):
         page.mouse.move(cx, cy)
         page.mouse.down()
         page.mouse.move(cx, cy - box["height"] * 0.3, steps=5)
-        _wait(lambda: live.state(0.0).joystick is not None, 2.0, "the joystick stream")
+        wait_until(lambda: live.state(0.0).joystick is not None, 2.0, "the joystick stream")
         x0, y0, th = _pose(live)
         time.sleep(1.5)
         x1, y1, _ = _pose(live)
@@ -109,8 +100,8 @@ def test_the_hud_drives_a_live_dry_run(browser, tmp_path):
         # stops within 0.5 s of the dead-man time
         page.close()
         t_stop = time.monotonic()
-        _wait(lambda: live.state(0.0).joystick is None, 1.0, "the dead-man")
-        _wait(lambda: _moved(live, 0.1) < 0.002, 2.0, "the robot to stop")
+        wait_until(lambda: live.state(0.0).joystick is None, 1.0, "the dead-man")
+        wait_until(lambda: _moved(live, 0.1) < 0.002, 2.0, "the robot to stop")
         assert time.monotonic() - t_stop < 0.5 + 0.3 + 0.2  # dead-man + braking + sampling
         page = browser.new_page(viewport={"width": 1280, "height": 800})
         page.goto(live.server.url)

@@ -298,7 +298,6 @@ class RejoinAfterHandBack(Guard):
     def update(self) -> Status:
         hand_backs = self.take_over.hand_backs
         if hand_backs != self._seen and not self.active:
-            self._seen = hand_backs
             progress: MissionProgress | None = self.read(PROGRESS, None)
             pose: PoseEstimate | None = self.read(POSE, None)
             past_approach = progress is not None and progress.phase in ("inspection", "return")
