@@ -604,9 +604,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--servo",
         action=argparse.BooleanOptionalAction,
         default=None,
-        help="visual servoing at the checkpoints that name a servo target (default: only "
-        "on aircraft types whose end-to-end runs meet 2 cm and 0.5 deg, none yet; --servo "
-        "forces it on, --no-servo off)",
+        help="visual servoing at the checkpoints that name a servo target (default: on for "
+        "the aircraft types whose end-to-end runs meet 2 cm and 0.5 deg, the A320-200 and "
+        "B737-800; --servo forces it on, --no-servo off)",
     )
     dry.add_argument(
         "--live",

@@ -46,6 +46,7 @@ from behaviours.laws.servo import (
     AdaptiveGain,
     InteractionAt,
     VisualServo,
+    approach_depth_row,
     approach_line_row,
     control_law_eq_3_10,
     pseudo_inverse,
@@ -790,3 +791,46 @@ def test_approach_line_row_steers_a_unicycle_onto_the_heading_line():
         omega = -2.0 * e / row[1]  # the least-squares law on this row alone, gain 2
         x, y, theta = x + v * math.cos(theta) * dt, y + v * math.sin(theta) * dt, theta + omega * dt
     assert abs(y) < 0.3 * 0.02  # in proportion to the distance left (0.25 of 1 m)
+
+
+def test_a_capped_pursuit_distance_takes_the_offset_out_exponentially():
+    """With the pursuit distance capped at L, the offset decays over L of travel rather
+    than in proportion to the distance left (with e held at 0, dtheta = -c / L and
+    dc/ds = -c / L): from 1 m out to 0.25 m, a 2 cm offset ends under exp(-0.75 / 0.4) of
+    itself, half or less of what the uncapped pursuit leaves (its 25 %)."""
+
+    def drive(lookahead: float) -> float:
+        x, y, theta = -1.0, 0.02, 0.0
+        dt, v = 0.02, 0.15
+        while True:
+            e, ahead, row = approach_line_row(x, y, theta, 0.0, 0.0, 0.0, lookahead)
+            if ahead <= 0.25:
+                return abs(y)
+            omega = -2.0 * e / row[1]
+            x += v * math.cos(theta) * dt
+            y += v * math.sin(theta) * dt
+            theta += omega * dt
+
+    capped, uncapped = drive(0.4), drive(math.inf)
+    assert capped < 0.5 * uncapped
+    assert capped < math.exp(-0.75 / 0.4) * 0.02
+
+
+@given(
+    st.floats(-0.3, 0.3), st.floats(-0.5, 2.0), st.floats(-0.5, 0.5), st.floats(-math.pi, math.pi)
+)
+@settings(max_examples=50, deadline=None)
+def test_approach_depth_row_is_the_distance_to_go_and_its_derivative(
+    cross, behind, dtheta, heading
+):
+    goal = (1.0, -2.0, heading)
+    ch, sh = math.cos(heading), math.sin(heading)
+    x = goal[0] - behind * ch - cross * sh
+    y = goal[1] - behind * sh + cross * ch
+    theta = heading + dtheta
+    e, row = approach_depth_row(x, y, theta, *goal)
+    assert e == pytest.approx(-behind, abs=1e-12)
+    h = 1e-6  # driving forward at unit speed for h seconds
+    e2, _ = approach_depth_row(x + h * math.cos(theta), y + h * math.sin(theta), theta, *goal)
+    assert (e2 - e) / h == pytest.approx(row[0], rel=1e-4, abs=1e-7)
+    assert row[1] == row[2] == row[3] == 0.0  # turning and the pan-tilt do not move it

@@ -680,15 +680,19 @@ def test_compiled_lab_tree_servoes_every_servo_checkpoint_without_warning(lab):
     assert order.index("pbvs CP1") < order.index("reached CP1") < order.index("go to CP1")
 
 
-def test_servoing_is_selectable_and_kept_metric_where_not_verified():
+def test_servoing_is_on_for_the_airliners_selectable_and_kept_metric_elsewhere():
     a320 = load_mission(MISSIONS / "a320" / "preflight.xml")
     default = compile_mission(a320, CompileOptions())
-    warned = [w for w in default.warnings if w.code == "servo-metric"]
-    assert warned and "not enabled by default" in warned[0].message
-    assert not default.servo_sessions
+    assert not [w for w in default.warnings if w.code == "servo-metric"]
+    assert check_tree(default.root) == [] and default.servo_sessions
     off = compile_mission(a320, CompileOptions(servo=False))
     warned = [w for w in off.warnings if w.code == "servo-metric"]
     assert warned and "turned off (--no-servo)" in warned[0].message
-    forced = compile_mission(a320, CompileOptions(servo=True))
+    assert not off.servo_sessions
+    lab = load_mission(MISSIONS / "lab" / "visual-servoing.xml")
+    kept = compile_mission(lab, CompileOptions())
+    warned = [w for w in kept.warnings if w.code == "servo-metric"]
+    assert warned and "not enabled by default" in warned[0].message
+    forced = compile_mission(lab, CompileOptions(servo=True))
     assert not [w for w in forced.warnings if w.code == "servo-metric"]
     assert check_tree(forced.root) == [] and forced.servo_sessions

@@ -100,6 +100,7 @@ from behaviours.laws.robot_jacobian import PanTiltCamera, robot_jacobian_eq_3_2
 from behaviours.laws.servo import (
     AdaptiveGain,
     VisualServo,
+    approach_depth_row,
     approach_line_row,
     stop_algorithm_3_1,
 )
@@ -175,7 +176,7 @@ PROGRESS_SHARE = 0.05
 class ServoParams:
     """Tuning of the servo (vpServo's options, issue 13)."""
 
-    gain: AdaptiveGain = field(default_factory=lambda: AdaptiveGain(2.0, 0.5, 10.0))
+    gain: AdaptiveGain = field(default_factory=lambda: AdaptiveGain(4.0, 0.5, 10.0))
     interaction: str = "mean"
     mu: float = 4.0
     track_gain: float = 2.0
@@ -197,6 +198,15 @@ class ServoParams:
     error as ``exp(-lambda t)`` in *time*, and at the servo's speed the approach takes
     three seconds, at a lambda near ``lambda_inf``: at the visual rows' rate the offset
     across the line had shrunk by a third when the row faded out."""
+    line_lookahead: float = 0.4
+    """Cap (m) of the approach-line row's pursuit distance
+    (:func:`behaviours.laws.servo.approach_line_row`): the offset across the line decays
+    over this distance instead of in proportion to the distance left."""
+    depth_sigma: float = 0.01
+    """Standard deviation (m) of the localisation's distance to the checkpoint along its
+    heading line: the depth row (:func:`behaviours.laws.servo.approach_depth_row`) weighs
+    ``sigma_image / depth_sigma`` against the IBVS rows (unit weight, ``sigma_image`` the
+    detection noise in normalised image units)."""
     line_from: float = 1.0
     line_until: float = 0.25
     """The approach-line row's weight fades linearly from ``line_weight`` with the base
@@ -727,6 +737,15 @@ class ServoSession:
         if line is not None:
             task = np.vstack((task, fade * p.line_weight * line[2]))
             error = np.append(error, fade * p.line_weight * p.line_gain * line[0])
+        depth = self._approach_depth() if self.mode == IBVS else None
+        if depth is not None:
+            # the localisation's say on the distance still to go, weighed against the image
+            # as the two measurements' noises (a weighted least-squares fusion): a target
+            # that fixes the camera's depth well outweighs it, one that hardly does (two
+            # points along the line of sight) stops where the localisation says
+            wd = (DETECTION_SIGMA_PX / cam.focal_px) / p.depth_sigma
+            task = np.vstack((task, wd * depth[1]))
+            error = np.append(error, wd * depth[0])
         step = self.law.step(error, task, np.eye(4), t)
         pan_max, tilt_max = self.rates[cam.unit.id]
         q = np.array(
@@ -761,13 +780,27 @@ class ServoSession:
         )
         return VelocityCommand(float(q[0]), float(q[1]), rates), done, why
 
-    def _approach_line(self) -> tuple[float, float, np.ndarray] | None:
+    def _goal_and_base(self) -> tuple[Pose2, Pose2] | None:
         pose = self._pose
         if pose is None or pose.placement is None:
             return None
-        goal = pose.placement.pose_to_airport(self.checkpoint_f)
-        base = pose.pose_a
-        return approach_line_row(base.x, base.y, base.theta, goal.x, goal.y, goal.theta)
+        return pose.placement.pose_to_airport(self.checkpoint_f), pose.pose_a
+
+    def _approach_line(self) -> tuple[float, float, np.ndarray] | None:
+        poses = self._goal_and_base()
+        if poses is None:
+            return None
+        goal, base = poses
+        return approach_line_row(
+            base.x, base.y, base.theta, goal.x, goal.y, goal.theta, self.params.line_lookahead
+        )
+
+    def _approach_depth(self) -> tuple[float, np.ndarray] | None:
+        poses = self._goal_and_base()
+        if poses is None:
+            return None
+        goal, base = poses
+        return approach_depth_row(base.x, base.y, base.theta, goal.x, goal.y, goal.theta)
 
     def _track_others(self, driving_unit: str) -> dict[str, PanTiltRate]:
         """Track-feature (lines 745-764) for every other unit: its best camera's augmented

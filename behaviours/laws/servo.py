@@ -60,6 +60,7 @@ __all__ = [
     "InteractionAt",
     "ServoStep",
     "VisualServo",
+    "approach_depth_row",
     "approach_line_row",
     "control_law_eq_3_10",
     "pseudo_inverse",
@@ -164,7 +165,13 @@ def stop_algorithm_3_1(
 
 
 def approach_line_row(
-    x: float, y: float, theta: float, goal_x: float, goal_y: float, goal_theta: float
+    x: float,
+    y: float,
+    theta: float,
+    goal_x: float,
+    goal_y: float,
+    goal_theta: float,
+    lookahead: float = math.inf,
 ) -> tuple[float, float, np.ndarray]:
     """A task row that steers a unicycle onto the goal's heading line (a secondary task
     stacked under the visual rows of eq. 3.10, for the robot Jacobian's q = (v, omega,
@@ -184,17 +191,41 @@ def approach_line_row(
 
     so the offset shrinks in proportion to the distance left. The row steers with
     ``omega`` only: its drift term is second order, and the speed is the visual rows' to
-    choose. Returns ``(e, d, row)``, ``row`` the (4,) Jacobian of ``e`` in q; the caller
-    drops the row near the goal, where ``d`` vanishes and what is left of ``c`` is the
-    visual rows' (the row would otherwise hold a residual against them).
+    choose. ``lookahead`` caps ``d`` (the aim point then runs ``lookahead`` ahead of the
+    base's projection on the line, not at the goal): pursuing the goal point itself, the
+    heading correction shrinks with the distance left and the offset falls only in
+    proportion to it, so a start 1 m out ends with 40 % of its offset 0.4 m out; with the
+    capped distance the offset decays exponentially over ``lookahead``. Returns
+    ``(e, d, row)`` with ``d`` the uncapped distance to go and ``row`` the (4,) Jacobian
+    of ``e`` in q; the caller drops the row near the goal, where what is left of ``c`` is
+    the visual rows' (the row would otherwise hold a residual against them).
     """
     ch, sh = math.cos(goal_theta), math.sin(goal_theta)
     dx, dy = x - goal_x, y - goal_y
     cross = -sh * dx + ch * dy
     ahead = -(ch * dx + sh * dy)
     dth = math.atan2(math.sin(theta - goal_theta), math.cos(theta - goal_theta))
-    d = max(ahead, 0.0)
+    d = min(max(ahead, 0.0), lookahead)
     return cross + d * math.sin(dth), ahead, np.array([0.0, d * math.cos(dth), 0.0, 0.0])
+
+
+def approach_depth_row(
+    x: float, y: float, theta: float, goal_x: float, goal_y: float, goal_theta: float
+) -> tuple[float, np.ndarray]:
+    """A task row for the distance still to go along the goal's heading line (poses as
+    :func:`approach_line_row`): ``e = -d`` (zero at the goal, negative behind it), whose
+    Jacobian in q = (v, omega, omega_pan, omega_tilt) is ``(cos(dtheta), 0, 0, 0)``
+    (``d(-d)/dt = v cos(dtheta)``).
+
+    Stacked with a small weight under the visual rows of eq. 3.10, it is the localisation's
+    say on the camera's depth: where the image fixes the distance to the target well (a
+    spread target seen face on) the visual rows outweigh it; where it does not (two points
+    lying mostly along the line of sight: the image changes little with the distance) it
+    sets where the least-squares law stops. Returns ``(e, row)``."""
+    ch, sh = math.cos(goal_theta), math.sin(goal_theta)
+    ahead = -(ch * (x - goal_x) + sh * (y - goal_y))
+    dth = math.atan2(math.sin(theta - goal_theta), math.cos(theta - goal_theta))
+    return -ahead, np.array([math.cos(dth), 0.0, 0.0, 0.0])
 
 
 @dataclass(frozen=True, slots=True)
