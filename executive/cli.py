@@ -49,6 +49,10 @@ def check_any(path: Path, library: Path | None = None) -> list[Problem]:
         kind = root_name(path)
         if kind == "scenario":
             return check_scenario(path, library)
+        if kind == "campaign":
+            from executive.campaign.spec import check_campaign
+
+            return check_campaign(path, library)
         if kind == "robot":
             return check_robot(path)
         return check_file(path, library)
@@ -60,6 +64,14 @@ def _describe(path: Path) -> str:
     kind = root_name(path)
     if kind == "robot":
         return describe_robot(load_robot(path))
+    if kind == "campaign":
+        from executive.campaign.spec import load_campaign
+
+        campaign = load_campaign(path)
+        return (
+            f"campaign '{campaign.id}': {len(campaign.scenarios)} base scenario(s), "
+            f"{campaign.episodes} episodes, seed {campaign.seed}"
+        )
     if kind == "scenario":
         scenario = load_scenario(path)
         return (
@@ -673,6 +685,10 @@ def build_parser() -> argparse.ArgumentParser:
     from executive.cli_robot import add_robot_commands
 
     add_robot_commands(sub)
+
+    from executive.campaign.cli import add_campaign_command
+
+    add_campaign_command(sub)
     return parser
 
 

@@ -504,3 +504,168 @@ def _check_overlaps(r: ElementReader, scenario: Scenario, obstacle_el: list) -> 
             f"{moving} moving obstacles (people in groups included); the limit is "
             f"{MAX_MOVING_AGENTS}",
         )
+
+
+# -- writing ----------------------------------------------------------------------------------
+def _num(value: float) -> str:
+    """A number that reads back as the very same float."""
+    return repr(float(value))
+
+
+def _deg(angle: float) -> str:
+    """Radians as degrees that read back (through ``math.radians``) as the same radians
+    for every angle that was read from degrees with at most nine decimals."""
+    return repr(round(math.degrees(angle), 9))
+
+
+def _xml_attrs(**attrs: object) -> str:
+    from xml.sax.saxutils import quoteattr
+
+    parts = []
+    for name, value in attrs.items():
+        if value is None:
+            continue
+        text = value if isinstance(value, str) else _num(value)  # type: ignore[arg-type]
+        parts.append(f"{name.rstrip('_').replace('_', '-')}={quoteattr(text)}")
+    return " ".join(parts)
+
+
+def _shape_attrs(body: Body) -> dict[str, object]:
+    if body.radius is not None:
+        return {"radius": body.radius}
+    return {"length": body.length, "width": body.width}
+
+
+def _obstacle_xml(obstacle: Obstacle) -> str:
+    if isinstance(obstacle, StaticObstacle):
+        if obstacle.body.radius is not None:
+            attrs = _xml_attrs(
+                id=obstacle.id,
+                kind=str(obstacle.kind),
+                x=obstacle.pose.x,
+                y=obstacle.pose.y,
+                radius=obstacle.body.radius,
+                height=obstacle.height,
+            )
+            return f"<circle {attrs}/>"
+        attrs = _xml_attrs(
+            id=obstacle.id,
+            kind=str(obstacle.kind),
+            x=obstacle.pose.x,
+            y=obstacle.pose.y,
+            heading_deg=_deg(obstacle.pose.theta),
+            length=obstacle.body.length,
+            width=obstacle.body.width,
+            height=obstacle.height,
+        )
+        return f"<box {attrs}/>"
+    if isinstance(obstacle, PathMover):
+        attrs = _xml_attrs(
+            id=obstacle.id,
+            kind=str(obstacle.kind),
+            **_shape_attrs(obstacle.body),
+            height=obstacle.height,
+            speed=obstacle.speed,
+            start_time=obstacle.start_time,
+            trigger_radius=obstacle.trigger_radius,
+            loop="true" if obstacle.loop else "false",
+        )
+        points = "".join(f"<waypoint {_xml_attrs(x=x, y=y)}/>" for x, y in obstacle.waypoints)
+        return f"<path {attrs}>{points}</path>"
+    if isinstance(obstacle, LoiteringGroup):
+        attrs = _xml_attrs(
+            id=obstacle.id,
+            x=obstacle.center[0],
+            y=obstacle.center[1],
+            radius=obstacle.radius,
+            count=str(obstacle.count),
+            speed=obstacle.speed,
+            person_radius=obstacle.person_radius,
+            height=obstacle.height,
+        )
+        return f"<group {attrs}/>"
+    attrs = _xml_attrs(
+        id=obstacle.id,
+        kind=str(obstacle.kind),
+        x=obstacle.start[0],
+        y=obstacle.start[1],
+        **_shape_attrs(obstacle.body),
+        height=obstacle.height,
+        speed=obstacle.speed,
+        trigger_radius=obstacle.trigger_radius,
+        pursuit=obstacle.pursuit,
+    )
+    return f"<chaser {attrs}/>"
+
+
+_FAULT_TARGET = {
+    FaultKind.LASER_DROPOUT: "laser",
+    FaultKind.CAMERA_FREEZE: "camera",
+    FaultKind.PTU_FREEZE: "camera",
+    FaultKind.BUMPER_HIT: "bumper",
+}
+
+
+def _fault_xml(fault: Fault) -> str:
+    target = _FAULT_TARGET.get(fault.kind)
+    attrs: dict[str, object] = {target: fault.target} if target else {}
+    attrs |= {"at": fault.at, "duration": fault.duration}
+    if fault.kind is FaultKind.SLIP_BURST:
+        attrs["factor"] = fault.factor
+    return f"<{fault.kind} {_xml_attrs(**attrs)}/>"
+
+
+def scenario_xml(scenario: Scenario, mission_ref: str) -> str:
+    """The scenario as a scenario file whose ``mission`` attribute is ``mission_ref`` (a
+    path relative to where the file will be written): every element :func:`load_scenario`
+    reads, written out in full (defaults included), so that loading the text gives back
+    ``scenario`` (its ``source`` aside)."""
+    from xml.sax.saxutils import escape
+
+    off, start, noise, slip, gps = (
+        scenario.parking_offset,
+        scenario.start,
+        scenario.noise,
+        scenario.slip,
+        scenario.gps,
+    )
+    root = _xml_attrs(
+        id=scenario.id, mission=mission_ref, seed=str(scenario.seed), duration=scenario.duration
+    )
+    lines = [
+        '<?xml version="1.0" encoding="UTF-8"?>',
+        f'<scenario xmlns="{SCENARIO_NS}" {root}>',
+        f"  <description>{escape(scenario.description)}</description>",
+        f"  <parking-offset {_xml_attrs(dx=off.x, dy=off.y, dheading_deg=_deg(off.theta))}/>",
+        f"  <start {_xml_attrs(x=start.x, y=start.y, heading_deg=_deg(start.theta))}/>",
+        f"  <physics {_xml_attrs(rate_hz=scenario.physics_rate)}/>",
+        "  <noise "
+        + _xml_attrs(
+            laser_range=noise.laser_range,
+            pixel=noise.pixel,
+            camera_dropout=noise.camera_dropout,
+            wheel=noise.wheel,
+            imu_rate=noise.imu_rate,
+            imu_bias=noise.imu_bias,
+            gps=noise.gps,
+        )
+        + "/>",
+        "  <slip "
+        + _xml_attrs(longitudinal=slip.longitudinal, turn=slip.turn, lateral=slip.lateral)
+        + "/>",
+        "  <gps "
+        + _xml_attrs(
+            mode="denied" if gps.denied else "open",
+            rate_hz=gps.rate_hz,
+            shadow_margin=gps.shadow_margin,
+        )
+        + "/>",
+        "  <obstacles>",
+        *(f"    {_obstacle_xml(o)}" for o in scenario.obstacles),
+        "  </obstacles>",
+        "  <faults>",
+        *(f"    {_fault_xml(f)}" for f in scenario.faults),
+        "  </faults>",
+        "</scenario>",
+    ]
+    return "\n".join(lines) + "\n"

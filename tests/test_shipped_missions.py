@@ -27,8 +27,9 @@ def test_library_has_every_type():
     folders = {p.relative_to(MISSIONS).parts[0] for p in ALL_FILES}
     types = {p.parent.name for p in MISSIONS.glob("*/aircraft.xml")}
     assert types == {"a320", "b737-800", "lab", "track"}
-    # besides the aircraft types, the robot files (the wires of a robot, issue 14)
-    assert folders == types | {"robots"}
+    # besides the aircraft types, the robot files (the wires of a robot, issue 14) and the
+    # Monte Carlo campaigns over the types' scenarios (issue 16)
+    assert folders == types | {"robots", "campaigns"}
     assert {p.name for p in (MISSIONS / "robots").glob("*.xml")} >= {"hil-localhost.xml"}
     assert all(p.exists() for p in SHIPPED_MISSIONS.values())
 
