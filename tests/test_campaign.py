@@ -430,8 +430,6 @@ def test_killed_campaign_resumes_without_loss_or_repeat(library, tmp_path):
 def test_command_line_refusals(library, tmp_path, capsys):
     campaign = str(library / "campaigns" / "short.xml")
     out = str(tmp_path / "o")
-    assert main(["campaign", campaign, "--out", out, "--backend", "ray"]) == 2
-    assert "not available yet" in capsys.readouterr().err
     for bad in (["--shard", "2/2"], ["--shard", "x"], ["--jobs", "0"], ["--episodes", "-1"]):
         assert main(["campaign", campaign, "--out", out, *bad]) == 2
     assert main(["campaign", campaign]) == 2  # no --out

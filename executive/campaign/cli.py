@@ -17,7 +17,6 @@ if TYPE_CHECKING:
 
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 SEED_MAX = 2**32 - 1
-BACKENDS = ("local", "ray")
 
 
 def _bad(message: str) -> int:
@@ -51,16 +50,18 @@ def add_campaign_command(sub: argparse._SubParsersAction) -> None:
         "dry-runs a scenario drawn from the campaign's distributions as a pure function of "
         "(seed, k). Each episode's result is appended to OUT/results.jsonl as it ends; "
         "OUT/summary.json (success rate with its 95 % interval per mission and scenario, "
-        "failures by cause, worst checkpoints) is written at the end. "
+        "failures by cause, worst checkpoints) and OUT/report.html (with plots) at the end. "
         "'walkaround campaign merge OUT SHARD_DIR...' merges the folders of --shard runs. "
         "Exit 0 when every episode succeeded, 1 when some failed, 2 on bad input.",
         usage="walkaround campaign CAMPAIGN.xml --out DIR [--episodes N] [--seed S] "
-        "[--jobs J] [--backend local|ray] [--shard i/k] [--resume] [--max-time S] [--quiet]\n"
+        "[--jobs J] [--backend local|ray] [--ray-address ADDR] [--shard i/k] [--resume]\n"
+        "       [--max-time S] [--quiet]\n"
         "       walkaround campaign CAMPAIGN.xml --episode N --export-scenario FILE [--seed S]\n"
-        "       walkaround campaign merge OUT SHARD_DIR...",
+        "       walkaround campaign merge OUT SHARD_DIR...\n"
+        "       walkaround campaign report OUT",
     )
     campaign.add_argument(
-        "campaign", metavar="CAMPAIGN.xml", help="campaign file (or 'merge', see above)"
+        "campaign", metavar="CAMPAIGN.xml", help="campaign file (or 'merge' or 'report', see above)"
     )
     campaign.add_argument("paths", nargs="*", type=Path, help=argparse.SUPPRESS)
     campaign.add_argument("--out", type=Path, default=None, help="results folder")
@@ -68,11 +69,26 @@ def add_campaign_command(sub: argparse._SubParsersAction) -> None:
         "--episodes", type=int, default=None, help="episodes 0..N-1 (default: the file's)"
     )
     campaign.add_argument("--seed", type=int, default=None, help="override the campaign seed")
-    campaign.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
+    campaign.add_argument(
+        "--jobs",
+        type=int,
+        default=1,
+        help="worker processes (default 1); with --backend ray, the CPUs of the Ray instance "
+        "started here (a running cluster uses all of its CPUs)",
+    )
     campaign.add_argument(
         "--backend",
         default="local",
-        help="local (worker processes on this machine); ray is not available yet",
+        help="local: worker processes on this machine (default); ray: Ray tasks, on the "
+        "cluster at --ray-address or $RAY_ADDRESS, else on a Ray instance started here "
+        "(needs pip install 'walkaround[cluster]'; on several machines the campaign's "
+        "files must lie at the same path on every node)",
+    )
+    campaign.add_argument(
+        "--ray-address",
+        default=None,
+        metavar="ADDR",
+        help="with --backend ray: the address of a running Ray cluster (default $RAY_ADDRESS)",
     )
     campaign.add_argument(
         "--shard", default=None, metavar="i/k", help="run only the episodes with index %% k == i"
@@ -104,6 +120,8 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     try:
         if args.campaign == "merge":
             return _merge(args)
+        if args.campaign == "report":
+            return _report_folder(args)
         if args.paths:
             return _bad(f"unexpected arguments: {' '.join(map(str, args.paths))}")
         return _export(args) if args.export_scenario is not None else _run(args)
@@ -151,10 +169,17 @@ def _export(args: argparse.Namespace) -> int:
 def _check_run_arguments(args: argparse.Namespace) -> str | None:
     import math
 
+    from executive.campaign.runner import BACKENDS
+
     if args.backend not in BACKENDS:
         return f"--backend {args.backend}: one of {', '.join(BACKENDS)}"
     if args.backend == "ray":
-        return "--backend ray: the Ray backend is not available yet; use --backend local"
+        from executive.campaign.ray_backend import INSTALL_HINT, ray_available
+
+        if not ray_available():
+            return f"--backend ray needs Ray, which is not installed: {INSTALL_HINT}"
+    elif args.ray_address is not None:
+        return "--ray-address goes with --backend ray"
     if args.out is None:
         return "--out DIR is required to run a campaign"
     if args.episodes is not None and args.episodes < 0:
@@ -193,17 +218,34 @@ def _run(args: argparse.Namespace) -> int:
             resume=args.resume,
             max_time=args.max_time,
             on_row=progress.update,
+            backend=args.backend,
+            ray_address=args.ray_address,
         )
     except ResultsFolderError as exc:
         return _bad(str(exc))
+    except ConnectionError as exc:  # --backend ray: no cluster at the address
+        return _bad(f"--backend ray: cannot reach the Ray cluster: {exc}")
     finally:
         progress.close()
+    from executive.campaign.report import report_from_folder
+
+    page = report_from_folder(args.out)
     ok = sum(bool(r.get("succeeded")) for r in rows)
     print(
         f"{ok}/{len(rows)} episodes succeeded; results in {args.out / 'results.jsonl'}, "
-        f"summary in {args.out / 'summary.json'}"
+        f"summary in {args.out / 'summary.json'}, report in {page}"
     )
     return EXIT_OK if ok == len(rows) else EXIT_FAILED
+
+
+def _report_folder(args: argparse.Namespace) -> int:
+    """``walkaround campaign report OUT``: (re)write OUT's HTML report from its results."""
+    from executive.campaign.report import report_from_folder
+
+    if len(args.paths) != 1:
+        return _bad("report needs exactly one results folder: walkaround campaign report OUT")
+    print(f"report in {report_from_folder(args.paths[0])}")
+    return EXIT_OK
 
 
 def _merge(args: argparse.Namespace) -> int:
@@ -234,7 +276,10 @@ def _merge(args: argparse.Namespace) -> int:
     write_atomic(out / RESULTS_FILE, text.encode("utf-8"))
     write_json(out / CAMPAIGN_FILE, identity | {"shard": None, "merged": [str(s) for s in shards]})
     write_json(out / SUMMARY_FILE, summarise(identity, rows))
-    print(f"merged {len(rows)} episodes from {len(shards)} folders into {out}")
+    from executive.campaign.report import report_from_folder
+
+    page = report_from_folder(out)
+    print(f"merged {len(rows)} episodes from {len(shards)} folders into {out}; report in {page}")
     return EXIT_OK
 
 

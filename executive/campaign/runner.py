@@ -1,4 +1,4 @@
-"""Running a campaign's episodes, in worker processes, into its results folder.
+"""Running a campaign's episodes, in worker processes or on Ray, into its results folder.
 
 Each episode is :func:`executive.dryrun.dry_run` on the scenario
 :func:`executive.campaign.sampler.draw_episode` gives; its result row is appended to
@@ -14,9 +14,10 @@ import multiprocessing
 import os
 import time
 import traceback
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Generator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
+from contextlib import AbstractContextManager, closing, nullcontext
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -154,24 +155,45 @@ def episode_row(campaign: Campaign, index: int, max_time: float | None = None) -
 
 
 @lru_cache(maxsize=4)
-def _campaign(path: str, seed: int) -> Campaign:
+def _campaign(path: str, seed: int, digest: str | None = None) -> Campaign:
+    """The campaign at ``path``, loaded once per worker process; ``digest`` (the driver's)
+    is part of the key: a long-lived worker (Ray reuses them) whose cached copy is of
+    other files loads the file again rather than trusting its cache."""
     return load_campaign(path).with_seed(seed)
 
 
-def worker_row(path: str, seed: int, index: int, max_time: float | None) -> Row:
-    """:func:`episode_row` in a worker process: the campaign is loaded once per worker."""
+def crashed_row(base: Row, cause: str, trace: str) -> Row:
+    """``base`` as the row of an episode that crashed with ``cause`` (its first cause)."""
+    return base | {
+        "outcome": "crashed",
+        "succeeded": False,
+        "first_cause": f"crashed: {cause}",
+        "causes": [],
+        "traceback": trace,
+    }
+
+
+def worker_row(
+    path: str, seed: int, index: int, max_time: float | None, digest: str | None = None
+) -> Row:
+    """:func:`episode_row` in a worker process: the campaign is loaded once per worker.
+    With ``digest`` (the driver's :attr:`Campaign.digest`), a campaign whose files differ
+    here from the driver's (edited since, or another copy on a cluster node) is not run:
+    its episode is a crashed row."""
+    base: Row = {"episode": index, "campaign_seed": seed}
     try:
-        campaign = _campaign(path, seed)
+        campaign = _campaign(path, seed, digest)
+        if digest is not None and campaign.digest != digest:
+            _campaign.cache_clear()  # the files may yet become the driver's
     except Exception as exc:
-        return {
-            "episode": index,
-            "campaign_seed": seed,
-            "outcome": "crashed",
-            "succeeded": False,
-            "first_cause": f"crashed: {type(exc).__name__}: {exc}",
-            "causes": [],
-            "traceback": traceback.format_exc(),
-        }
+        return crashed_row(base, f"{type(exc).__name__}: {exc}", traceback.format_exc())
+    if digest is not None and campaign.digest != digest:
+        return crashed_row(
+            _row_base(campaign, index),
+            f"the campaign's files at {path} differ in this worker from the driver's "
+            f"(digest {campaign.digest[:12]}, expected {digest[:12]})",
+            "",
+        )
     return episode_row(campaign, index, max_time)
 
 
@@ -217,7 +239,7 @@ def _local_rows(
     todo: list[int],
     jobs: int,
     max_time: float | None,
-) -> Iterator[Row]:
+) -> Generator[Row, None, None]:
     """Rows of ``todo`` as their episodes end: in this process (``jobs`` 1) or in a
     pool of spawned worker processes."""
     if jobs <= 1:
@@ -234,7 +256,9 @@ def _local_rows(
             while queue or pending:
                 while queue and len(pending) < 2 * jobs:
                     index = queue.pop(0)
-                    future = pool.submit(worker_row, path, campaign.seed, index, max_time)
+                    future = pool.submit(
+                        worker_row, path, campaign.seed, index, max_time, campaign.digest
+                    )
                     pending[future] = index
                 done, _ = wait(pending, return_when=FIRST_COMPLETED)
                 for future in done:
@@ -252,13 +276,15 @@ def _result_of(future: Future[Row], campaign: Campaign, index: int) -> Row:
     try:
         return future.result()
     except BrokenProcessPool as exc:  # a worker died (killed, out of memory)
-        return _row_base(campaign, index) | {
-            "outcome": "crashed",
-            "succeeded": False,
-            "first_cause": f"crashed: the worker process died ({exc})",
-            "causes": [],
-            "traceback": "".join(traceback.format_exception(exc)),
-        }
+        return crashed_row(
+            _row_base(campaign, index),
+            f"the worker process died ({exc})",
+            "".join(traceback.format_exception(exc)),
+        )
+
+
+BACKENDS = ("local", "ray")
+"""Where episodes run: worker processes on this machine, or tasks on a Ray cluster."""
 
 
 def run_campaign(
@@ -271,25 +297,47 @@ def run_campaign(
     resume: bool = False,
     max_time: float | None = None,
     on_row: Callable[[Row, int, int], None] | None = None,
+    backend: str = "local",
+    ray_address: str | None = None,
 ) -> list[Row]:
     """Run episodes 0 .. ``episodes`` - 1 (those of ``shard``) not already in ``out``;
     write each row as it ends, then ``summary.json``. Returns every row of the folder,
-    sorted by episode. ``on_row(row, done, total)`` follows progress."""
+    sorted by episode. ``on_row(row, done, total)`` follows progress.
+
+    ``backend`` "local" runs the episodes in ``jobs`` worker processes (in this process
+    when 1); "ray" runs them as Ray tasks (:mod:`executive.campaign.ray_backend`: the
+    cluster at ``ray_address`` or ``RAY_ADDRESS``, else a local instance of ``jobs``
+    CPUs). Both give the same rows apart from ``wall_s``."""
     if not campaign.source:
         raise ValueError("a campaign loaded from a file is needed (its workers reload it)")
-    rows = prepare_folder(campaign, out, resume, shard)
-    finished = {int(r["episode"]) for r in rows}  # type: ignore[call-overload]
-    wanted = [k for k in range(episodes) if shard is None or shard.holds(k)]
-    todo = [k for k in wanted if k not in finished]
-    total = len(wanted)
-    done = total - len(todo)
-    with (out / RESULTS_FILE).open("a", encoding="utf-8") as handle:
-        for row in _local_rows(campaign, campaign.source, todo, jobs, max_time):
-            append_row(handle, row)
-            rows.append(row)
-            done += 1
-            if on_row is not None:
-                on_row(row, done, total)
+    if backend not in BACKENDS:
+        raise ValueError(f"backend {backend!r}: one of {', '.join(BACKENDS)}")
+    session: AbstractContextManager[None] = nullcontext()
+    if backend == "ray":
+        from executive.campaign.ray_backend import ray_session
+
+        session = ray_session(jobs, ray_address)  # connects before the folder is touched
+    with session:
+        rows = prepare_folder(campaign, out, resume, shard)
+        finished = {int(r["episode"]) for r in rows}  # type: ignore[call-overload]
+        wanted = [k for k in range(episodes) if shard is None or shard.holds(k)]
+        todo = [k for k in wanted if k not in finished]
+        total = len(wanted)
+        done = total - len(todo)
+        source: Generator[Row, None, None]
+        if backend == "ray":
+            from executive.campaign.ray_backend import ray_rows
+
+            source = ray_rows(campaign, campaign.source, todo, jobs, max_time)
+        else:
+            source = _local_rows(campaign, campaign.source, todo, jobs, max_time)
+        with (out / RESULTS_FILE).open("a", encoding="utf-8") as handle, closing(source):
+            for row in source:
+                append_row(handle, row)
+                rows.append(row)
+                done += 1
+                if on_row is not None:
+                    on_row(row, done, total)
     rows.sort(key=lambda r: int(r["episode"]))  # type: ignore[call-overload]
     write_json(out / SUMMARY_FILE, summarise(identity(campaign), rows))
     return rows
