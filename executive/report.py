@@ -208,8 +208,8 @@ def write_report(run: DryRun, out: Path) -> Path:
     :class:`OSError` (a full disk) names the file it was writing.
     """
     out.mkdir(parents=True, exist_ok=True)
-    _write(out / "metrics.json", (json.dumps(metrics(run), indent=2) + "\n").encode())
-    _write(
+    write_atomic(out / "metrics.json", (json.dumps(metrics(run), indent=2) + "\n").encode())
+    write_atomic(
         out / "events.jsonl",
         "".join(
             json.dumps(e.as_dict(), separators=(",", ":")) + "\n" for e in run.result.events
@@ -225,16 +225,8 @@ def write_report(run: DryRun, out: Path) -> Path:
             warnings.filterwarnings("ignore", category=UserWarning, module="matplotlib")
             drawn = draw(run, image)
         if drawn:
-            _write(out / name, image.getvalue())
+            write_atomic(out / name, image.getvalue())
     return out
-
-
-def _write(path: Path, data: bytes) -> None:
-    try:
-        write_atomic(path, data)
-    except OSError as exc:
-        exc.filename = str(path)
-        raise
 
 
 KINDS = (

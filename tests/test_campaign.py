@@ -80,6 +80,12 @@ def _line_of(path: Path, needle: str) -> int:
     return next(i for i, line in enumerate(path.read_text().splitlines(), 1) if needle in line)
 
 
+SPAWNS = pytest.mark.xdist_group("hil")
+"""For the tests that start worker processes of their own: they join the real-time (HIL)
+tests' xdist group, which one worker runs in turn, so that they never starve the HIL
+rig's processes on a 2-core machine."""
+
+
 # -- the file ------------------------------------------------------------------------------------
 def test_shipped_campaigns_are_valid():
     for path in sorted(SHIPPED.glob("*.xml")):
@@ -287,6 +293,7 @@ def test_export_round_trips_and_dry_run_reruns_the_episode(library, tmp_path, ca
 
 
 # -- running -------------------------------------------------------------------------------------
+@SPAWNS
 def test_shards_merge_into_the_unsharded_run(library, tmp_path, capsys):
     campaign = library / "campaigns" / "short.xml"
     whole = run_campaign(load_campaign(campaign), tmp_path / "whole", 5)
@@ -363,6 +370,7 @@ def test_shards_merge_into_the_unsharded_run(library, tmp_path, capsys):
     assert "another campaign" in capsys.readouterr().err
 
 
+@SPAWNS
 def test_killed_campaign_resumes_without_loss_or_repeat(library, tmp_path):
     campaign = library / "campaigns" / "short.xml"
     out = tmp_path / "run"

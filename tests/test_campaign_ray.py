@@ -17,8 +17,10 @@ from executive.campaign.spec import load_campaign
 from executive.cli import main
 from tests.conftest import MISSIONS
 
-# one Ray instance for the module, on one xdist worker (it starts processes of its own)
-pytestmark = [pytest.mark.xdist_group("ray"), pytest.mark.slow]
+# one Ray instance for the module, in the xdist group of the real-time (HIL) tests: Ray
+# starts processes of its own (raylet, GCS, workers) and opens ports, which starved the HIL
+# rig's processes and took a port it had picked when both ran at once on 2 cores
+pytestmark = [pytest.mark.xdist_group("hil"), pytest.mark.slow]
 
 LEG = MISSIONS / "campaigns" / "avoidance-leg.xml"
 EPISODES = 4

@@ -578,14 +578,6 @@ def _bins_table(bins: list[RateBin], what: str) -> str:
     return _table(head, body, numeric=(1, 2, 3, 4))
 
 
-def _write(path: Path, data: bytes) -> None:
-    try:
-        write_atomic(path, data)
-    except OSError as exc:
-        exc.filename = str(path)
-        raise
-
-
 def _draw_plots(out: Path, rows: list[Row]) -> tuple[dict[str, bytes], dict[str, str]]:
     """Write the PNGs that have data (removing old ones that have none); return the
     images drawn and the note under each plot."""
@@ -633,7 +625,7 @@ def _draw_plots(out: Path, rows: list[Row]) -> tuple[dict[str, bytes], dict[str,
     for name in (SPEED_PLOT, COUNT_PLOT, ERROR_PLOT):
         data = drawn.get(name)
         if data is not None:
-            _write(out / name, data)
+            write_atomic(out / name, data)
         else:
             (out / name).unlink(missing_ok=True)  # an old plot would belie the page
     return drawn, notes
@@ -677,7 +669,7 @@ def write_report(out: Path, rows: list[Row], summary: Mapping[str, object]) -> P
         ]
     parts += ["</body>", "</html>", ""]
     path = out / REPORT_FILE
-    _write(path, "\n".join(parts).encode("utf-8"))
+    write_atomic(path, "\n".join(parts).encode("utf-8"))
     return path
 
 

@@ -65,8 +65,18 @@ def read_regular(path: Path | str, limit: int) -> bytes:
 def write_atomic(path: Path, data: bytes) -> None:
     """Replace ``path`` with ``data`` in one rename (see the module docstring).
 
-    Raises :class:`OSError` (the target untouched) when the data cannot be written.
+    Raises :class:`OSError` (the target untouched) when the data cannot be written; its
+    ``filename`` is ``path`` (a full disk raises from ``write`` with no file name, and the
+    temporary file's name would mean nothing to the user).
     """
+    try:
+        _write_atomic(path, data)
+    except OSError as exc:
+        exc.filename = str(path)
+        raise
+
+
+def _write_atomic(path: Path, data: bytes) -> None:
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0)
     with contextlib.suppress(FileNotFoundError):
