@@ -147,10 +147,12 @@ VICINITY_MARGIN = 3.0
 the operator is "in P's close vicinity" (fig. 2.21) and resumes its phase; farther out it
 goes back to P first. Three metres: about two robot lengths, the approach's last leg."""
 
-SERVO_SPEED = 0.5
-"""Top speed (m/s) of visual servoing (also capped by the mission's inspection speed): the
-servo run from :data:`SERVO_START` is short, and the law's gain, not this cap, sets how
-the robot settles at the checkpoint."""
+SERVO_SPEED = 0.3
+"""Top speed (m/s) of visual servoing (also capped by the mission's inspection speed). The
+approach-line row turns the base back onto the checkpoint's heading line over its 0.4 m
+look-ahead; at 0.5 m/s its heading loop lagged that (and the gain (4, 0.5, 10) with it):
+A320 CP15 of a busy-apron campaign episode ended 2.1 cm across the line, 0.46 cm at
+0.3 m/s."""
 
 CAMERA_ANGLE_THRESHOLD = math.radians(0.25)
 """Correct camera angle acts when the measured pan is this far from the pan the

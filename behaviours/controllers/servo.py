@@ -176,7 +176,7 @@ PROGRESS_SHARE = 0.05
 class ServoParams:
     """Tuning of the servo (vpServo's options, issue 13)."""
 
-    gain: AdaptiveGain = field(default_factory=lambda: AdaptiveGain(4.0, 0.5, 10.0))
+    gain: AdaptiveGain = field(default_factory=lambda: AdaptiveGain(2.0, 0.5, 10.0))
     interaction: str = "mean"
     mu: float = 4.0
     track_gain: float = 2.0
