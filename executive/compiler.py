@@ -55,7 +55,7 @@ from shapely.geometry import Point
 from shapely.geometry import Polygon as ShapelyPolygon
 from shapely.ops import unary_union
 
-from behaviours.base import Controller, Guard, Node
+from behaviours.base import Controller, Guard, Node, unobserved
 from behaviours.controllers.avoidance import (
     DODGE,
     REPLAN,
@@ -175,14 +175,50 @@ any other type, checkpoints keep metric go-to-goal with a ``servo-metric`` warni
 says so (``--servo`` forces servoing on)."""
 
 
-class GuardSelector(py_trees.composites.Selector):
+class Sequence(py_trees.composites.Sequence):
+    """py_trees' sequence; its stop skips the debug string nobody reads
+    (:func:`behaviours.base.unobserved`): the tree stops composites thousands of times a
+    second."""
+
+    def stop(self, new_status: Status = Status.INVALID) -> None:
+        if unobserved():
+            py_trees.composites.Composite.stop(self, new_status)
+        else:
+            super().stop(new_status)
+
+
+class Selector(py_trees.composites.Selector):
+    """py_trees' selector, with :class:`Sequence`'s lean stop."""
+
+    def stop(self, new_status: Status = Status.INVALID) -> None:
+        if unobserved():
+            py_trees.composites.Composite.stop(self, new_status)
+        else:
+            super().stop(new_status)
+
+
+class Parallel(py_trees.composites.Parallel):
+    """py_trees' parallel, with :class:`Sequence`'s lean stop (running children are
+    stopped first, as py_trees' own does)."""
+
+    def stop(self, new_status: Status = Status.INVALID) -> None:
+        if not unobserved():
+            super().stop(new_status)
+            return
+        for child in self.children:
+            if child.status == Status.RUNNING:
+                child.stop(Status.INVALID)
+        py_trees.composites.Composite.stop(self, new_status)
+
+
+class GuardSelector(Selector):
     """A priority selector of guarded controllers, re-evaluated every tick."""
 
     def __init__(self, name: str, children: list[py_trees.behaviour.Behaviour]) -> None:
         super().__init__(name, memory=False, children=children)
 
 
-class GuardedBranch(py_trees.composites.Sequence):
+class GuardedBranch(Sequence):
     """[guard] -> controller: the controller runs only while its guard holds. The
     controller may be a :class:`GuardSelector` of guarded controllers (the collaborative
     mode's)."""
@@ -191,7 +227,7 @@ class GuardedBranch(py_trees.composites.Sequence):
         super().__init__(name, memory=False, children=[guard, controller])
 
 
-class ResumableSequence(py_trees.composites.Sequence):
+class ResumableSequence(Sequence):
     """A memory sequence that a pre-emption pauses instead of resetting (ARCHITECTURE §5).
 
     py_trees' memory sequence starts again from its first child whenever it is ticked
@@ -428,7 +464,7 @@ class _Builder:
                 goto,
             ],
         )
-        return py_trees.composites.Sequence(
+        return Sequence(
             f"navigate {label}",
             memory=False,
             children=[self.trap(label, goal, checkpoint), guards],
@@ -441,7 +477,7 @@ class _Builder:
         if checkpoint is None or not self.options.ask_operator:
             return trap
         ask = AskWhenTrapped(trap, checkpoint, self.skips, name=f"ask operator {label}")
-        return py_trees.composites.Selector(f"trapped {label}?", memory=False, children=[trap, ask])
+        return Selector(f"trapped {label}?", memory=False, children=[trap, ask])
 
     def avoidance(self, label: str, goal: Goal) -> list[py_trees.behaviour.Behaviour]:
         """The obstacle-avoidance branches of a navigation (ARCHITECTURE §5), if enabled:
@@ -647,7 +683,7 @@ class _Builder:
         visit = ResumableSequence(f"checkpoint {cp.id}", children, rewind_to=reach)
         if not self.options.ask_operator:
             return visit
-        return py_trees.composites.Selector(
+        return Selector(
             f"checkpoint {cp.id} or skip",
             memory=False,
             children=[visit, SkipCheckpoint(cp.id, self.skips)],
@@ -716,9 +752,7 @@ class _Builder:
         back = self.navigate(
             "P (abort)", self.waypoint_goal(self.mission.handover), False, (0.3, None)
         )
-        return py_trees.composites.Sequence(
-            "abort: back to P", memory=False, children=[OperatorAborted(), back]
-        )
+        return Sequence("abort: back to P", memory=False, children=[OperatorAborted(), back])
 
     def rejoin(self) -> py_trees.behaviour.Behaviour:
         """Fig. 2.21's surrender transitions (:class:`RejoinAfterHandBack`): handed back
@@ -733,14 +767,12 @@ class _Builder:
         reach = float(airframe.distance(Point(p_f.x, p_f.y))) + VICINITY_MARGIN
         guard = RejoinAfterHandBack(self.take_over, airframe, reach, nominal)
         back = self.navigate("P (rejoin)", p, False, (0.3, None))
-        return py_trees.composites.Sequence(
-            "rejoin: back to P", memory=False, children=[guard, back, Rejoined(guard)]
-        )
+        return Sequence("rejoin: back to P", memory=False, children=[guard, back, Rejoined(guard)])
 
     def build(self) -> py_trees.behaviour.Behaviour:
         m = self.mission
         start = self.options.start or m.airport.station
-        sensing = py_trees.composites.Sequence(
+        sensing = Sequence(
             "sensing",
             memory=False,
             children=[
@@ -757,13 +789,13 @@ class _Builder:
         phases.append(self.return_home())
         phases.append(SetProgress("done", name="mission done"))
         mission = ResumableSequence("mission", phases)
-        mode = py_trees.composites.Selector(
+        mode = Selector(
             "mode",
             memory=False,
             children=[self.collaborative(), self.abort(), self.rejoin(), mission],
         )
         policy = py_trees.common.ParallelPolicy.SuccessOnSelected([mode], synchronise=False)
-        return py_trees.composites.Parallel("walkaround", policy, children=[sensing, mode])
+        return Parallel("walkaround", policy, children=[sensing, mode])
 
 
 def compile_mission(mission: Mission, options: CompileOptions | None = None) -> CompiledMission:
