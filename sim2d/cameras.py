@@ -302,6 +302,18 @@ class FeatureCloud:
     def __len__(self) -> int:
         return len(self.points)
 
+    def out_of_range(self, x: float, y: float, reach: float) -> bool:
+        """True when no camera within ``reach`` (m, horizontally) of ``(x, y)`` can detect
+        any point: every point is more than 1 m beyond its detection range from there.
+
+        The metre dwarfs any rounding in :func:`detect`'s range test, so :func:`detect`
+        from such a camera surely returns no detection (and draws no random number).
+        """
+        dx = self.points[:, 0] - x
+        dy = self.points[:, 1] - y
+        limit = self.detection_range + (reach + 1.0)
+        return bool(np.all(dx * dx + dy * dy > limit * limit))
+
 
 # -- detection ------------------------------------------------------------------------------
 def detect(
@@ -360,7 +372,7 @@ def detect(
     weights[6, :3] = -2.0 * cam
     weights[6, 3] = cam @ cam
     tests = weights @ cloud._design
-    idx = np.flatnonzero(tests.max(axis=0) < 0.0)
+    idx = (np.maximum.reduce(tests, axis=0) < 0.0).nonzero()[0]
     if idx.size == 0:
         return CameraFrame(stamp)
     uv = tests[:2].take(idx, axis=1) / tests[4].take(idx)  # (-U, -V) / (-Z): rows u, v

@@ -4,8 +4,9 @@ Pure numpy, no pymunk queries. Occluders are line segments and circles in one 2D
 (the world, SI units, angles in rad counter-clockwise from +x), collected in a
 :class:`Scene`. :func:`cast_scan` produces the ranges of a planar scanner (a Hokuyo
 UTM-30LX is ``angle_min=-3*pi/4``, ``angle_increment=pi/720``, 1081 beams, 30 m), in the
-convention of :class:`executive.core.records.LaserScan`; :func:`cast_rays` answers first-hit
-queries for arbitrary directions and says which obstacle was hit.
+convention of :class:`executive.core.records.LaserScan` (:func:`cast_scans`: several
+scanners of one model at once, as one scan of a scene repeated for each); :func:`cast_rays`
+answers first-hit queries for arbitrary directions and says which obstacle was hit.
 
 Which beams are computed, and why
 ---------------------------------
@@ -64,13 +65,21 @@ Conventions
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from functools import lru_cache
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["ANGLE_TOL", "EDGE_ON_TOL", "Scene", "box_corners", "cast_rays", "cast_scan"]
+__all__ = [
+    "ANGLE_TOL",
+    "EDGE_ON_TOL",
+    "Scene",
+    "box_corners",
+    "cast_rays",
+    "cast_scan",
+    "cast_scans",
+]
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -372,7 +381,7 @@ _CULLED = -1.0e6
 
 
 def _shapes(
-    scene: Scene, origin: complex, rot: complex, reach: float
+    scene: Scene, origin: complex | ComplexArray, rot: complex | ComplexArray, reach: float
 ) -> tuple[FloatArray, FloatArray, ComplexArray, FloatArray]:
     """Angular interval and pair coefficient of every shape, seen from ``origin``.
 
@@ -383,9 +392,12 @@ def _shapes(
     ``coef``: for a segment ``(b - a) / (a x b)``, so that the beam of unit direction ``u``
     meets it at ``1 / Im(conj(u) * coef)``; for a circle, its centre. Also the squared
     radii.
+
+    ``origin`` and ``rot`` may also be arrays with one value per point of the scene (as
+    for a :func:`_stacked` scene, each copy seen from its own viewpoint).
     """
     n = scene._n_seg
-    k = len(scene._owners)
+    k = n + len(scene._radii)
     w = scene._z - origin
     w *= rot
     bearing = np.arctan2(w.imag, w.real)
@@ -397,7 +409,7 @@ def _shapes(
         # e from the world coordinates (exact for short segments): a x e is then free of
         # the cancellation of a x b, and equal to it.
         e = scene._z[1 : 2 * n : 2] - scene._z[0 : 2 * n : 2]
-        e *= rot
+        e *= rot[0 : 2 * n : 2] if isinstance(rot, np.ndarray) else rot
         length = np.abs(e)
         a, dist_a = w[0 : 2 * n : 2], dist[0 : 2 * n : 2]
         ae = np.conjugate(a)
@@ -454,14 +466,14 @@ def _distances(
     offset += ends
     offset -= flat
     beams = np.arange(total)
-    beams -= np.repeat(offset, flat)
-    z = np.repeat(coef, per_shape)
+    beams -= offset.repeat(flat)
+    z = coef.repeat(per_shape)
     z *= conj_dirs.take(beams)
     t = np.empty(total)
     np.reciprocal(z.imag[:n_seg_pairs], out=t[:n_seg_pairs])
     if total > n_seg_pairs:
         q = z.imag[n_seg_pairs:]
-        disc = np.repeat(rsq, per_shape[n_seg:])
+        disc = rsq.repeat(per_shape[n_seg:])
         disc -= q * q
         np.maximum(disc, 0.0, out=disc)
         np.sqrt(disc, out=disc)
@@ -568,6 +580,109 @@ def cast_scan(
     np.maximum(count, 0, out=count)
     beams, t, _ = _distances(index[0], count, conj_dirs, coef, rsq, scene._n_seg)
     np.minimum.at(target, beams, t)
+    return out
+
+
+def _stacked(scene: Scene, copies: int) -> Scene:
+    """``copies`` copies of the shapes of ``scene`` as one scene: the segments of every
+    copy, then the circles of every copy. Only what :func:`_shapes` reads is set."""
+    n = scene._n_seg
+    z = scene._z
+    out = Scene.__new__(Scene)
+    out._z = np.concatenate((*(z[: 2 * n],) * copies, *(z[2 * n :],) * copies))
+    out._n_seg = copies * n
+    out._radii = np.concatenate((scene._radii,) * copies)
+    out._side_sign = np.concatenate((scene._side_sign,) * copies)
+    return out
+
+
+@lru_cache(maxsize=64)
+def _stack_layout(n_seg: int, n_circ: int, copies: int, n_beams: int) -> tuple[IntArray, IntArray]:
+    """For a :func:`_stacked` scene: how many points of each block (the segments of each
+    copy, then the circles of each copy) share a viewpoint, and the first output index
+    (``copy * n_beams``) of every shape."""
+    reps = np.array((2 * n_seg,) * copies + (n_circ,) * copies, dtype=np.int64)
+    lane = n_beams * np.arange(copies, dtype=np.int64)
+    first = np.concatenate((lane.repeat(n_seg), lane.repeat(n_circ)))
+    for arr in (reps, first):
+        arr.flags.writeable = False
+    return reps, first
+
+
+@lru_cache(maxsize=64)
+def _tiled_dirs(angle_increment: float, n_beams: int, copies: int) -> ComplexArray:
+    """The conjugate beam directions of :func:`_beam_table`, once per scan."""
+    dirs = np.tile(_beam_table(angle_increment, n_beams)[0], copies)
+    dirs.flags.writeable = False
+    return dirs
+
+
+def cast_scans(
+    scene: Scene,
+    origins: Sequence[tuple[float, float]],
+    headings: Sequence[float],
+    angle_min: float,
+    angle_increment: float,
+    n_beams: int,
+    range_max: float,
+) -> NDArray[np.float64]:
+    """Ranges ``(L, n_beams)`` of L scans of one scanner model: row ``l`` is exactly
+    ``cast_scan(scene, origins[l], headings[l], angle_min, ...)``.
+
+    The scans are cast together, as one scan of a :func:`_stacked` scene whose copy
+    ``l`` is seen from viewpoint ``l``: casting costs mostly the fixed overhead of its
+    numpy calls, so two scanners cost little more than one. Every number is computed
+    by the same numpy kernels as in :func:`cast_scan`, which give each element the same
+    result wherever it sits in an array, with one exception: a complex product of
+    length 1 is rounded without a fused multiply-add. So a scene with a single segment
+    or point, a negative ``angle_increment``, and a scan with a single (beam, shape) pair
+    are cast one scan at a time.
+    """
+    n_beams = int(n_beams)
+    copies = len(origins)
+    if len(headings) != copies:
+        raise ValueError("origins and headings must have the same length")
+    out = np.empty((copies, n_beams))
+    n, m = scene._n_seg, len(scene._radii)
+    if copies < 2 or n == 1 or 2 * n + m < 2 or not angle_increment > 0.0:
+        for row in range(copies):
+            args = (angle_min, angle_increment, n_beams, range_max)
+            cast_scan(scene, origins[row], headings[row], *args, out=out[row])
+        return out
+    if not math.isfinite(angle_increment):
+        raise ValueError("angle_increment must be finite and non-zero")
+    out.fill(range_max)
+    if n_beams == 0:
+        return out
+    conj_dirs = _tiled_dirs(float(angle_increment), n_beams, copies)
+    _, neg_lo, hi, caps = _beam_table(float(angle_increment), n_beams)
+    reps, lane_start = _stack_layout(n, m, copies, n_beams)
+    refs = [heading + angle_min for heading in headings]  # the directions of beam 0
+    at = np.array([complex(x, y) for x, y in origins] * 2).repeat(reps)
+    rot = np.array([complex(math.cos(ref), -math.sin(ref)) for ref in refs] * 2).repeat(reps)
+    start, width, coef, rsq = _shapes(_stacked(scene, copies), at, rot, float(range_max))
+    # as in cast_scan, with the beams of copy l at l * n_beams... in the flat output
+    inv = 1.0 / angle_increment
+    start *= inv
+    width *= inv
+    width += start
+    bounds = np.empty((2, len(neg_lo), len(start)))
+    np.subtract(neg_lo, start, out=bounds[0])
+    np.add(hi, width, out=bounds[1])
+    np.floor(bounds, out=bounds)
+    np.minimum(bounds, caps, out=bounds)
+    index = bounds.astype(np.int64)
+    count = index[1] + index[0]
+    np.maximum(count, 0, out=count)
+    neg_first = index[0]
+    neg_first -= lane_start
+    beams, t, _ = _distances(neg_first, count, conj_dirs, coef, rsq, copies * n)
+    np.minimum.at(out.reshape(-1), beams, t)
+    if len(t) > 1:
+        lone = np.bincount(beams // n_beams, minlength=copies) == 1
+        for row in lone.nonzero()[0].tolist():
+            args = (angle_min, angle_increment, n_beams, range_max)
+            cast_scan(scene, origins[row], headings[row], *args, out=out[row])
     return out
 
 

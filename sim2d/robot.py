@@ -17,9 +17,9 @@ for byte, for the same scenario and seed.
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import json
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -41,8 +41,15 @@ from executive.core.records import (
     WheelSpeeds,
 )
 from sim2d.cameras import CameraRig, FeatureCloud, PanTiltUnit, camera_rigs, detect
-from sim2d.scenario import FaultKind, Scenario
-from sim2d.sensors import Gps, Imu, LaserSensor, WheelEncoders, sight_lines_blocked
+from sim2d.scenario import Fault, FaultKind, Scenario
+from sim2d.sensors import (
+    Gps,
+    Imu,
+    LaserSensor,
+    WheelEncoders,
+    scan_lasers,
+    sight_lines_blocked,
+)
 from sim2d.world import Collision, World
 
 WHEEL_RATE_HZ = 50.0
@@ -88,6 +95,9 @@ class SimRobot:
         sensor_log: Path | IO[str] | None = None,
     ) -> None:
         self.scenario = scenario
+        self._faults: dict[FaultKind, list[Fault]] = {}  # the scenario's faults by kind
+        for fault in scenario.faults:
+            self._faults.setdefault(fault.kind, []).append(fault)
         seeds = np.random.SeedSequence(scenario.seed).spawn(8)
         rngs = [np.random.default_rng(s) for s in seeds]
         self.world = World(scenario, rngs[0])
@@ -106,6 +116,9 @@ class SimRobot:
             for rig in camera_rigs(mission.platform.cameras)
         ]
         self.cloud = FeatureCloud.from_aircraft(mission.aircraft, self.world.placement)
+        # how far (horizontally) a camera can be from the robot's origin, with a margin
+        offsets = [math.hypot(*rig.spec.mount[:2]) + abs(rig.lateral) for rig, _ in self.rigs]
+        self._camera_reach = max(offsets, default=0.0) + 0.01
         self.camera_rng = rngs[2]
         self.wheels = WheelEncoders(noise.wheel, rngs[3])
         self.imu = Imu(noise.imu_rate, noise.imu_bias, rngs[4])
@@ -171,8 +184,8 @@ class SimRobot:
         world = self.world
         t = world.time
         slip_factor = 1.0
-        for fault in self.scenario.faults:
-            if fault.kind is FaultKind.SLIP_BURST and fault.active(t):
+        for fault in self._faults.get(FaultKind.SLIP_BURST, ()):
+            if fault.active(t):
                 slip_factor *= fault.factor
         bumper_fault = bool(self._fault_targets(FaultKind.BUMPER_HIT, t))
         world.step(slip_factor, bumper_fault)
@@ -181,7 +194,10 @@ class SimRobot:
         self._sample(world.time)
 
     def _fault_targets(self, kind: FaultKind, t: float) -> set[str | None]:
-        return {f.target for f in self.scenario.faults if f.kind is kind and f.active(t)}
+        faults = self._faults.get(kind)
+        if not faults:  # the usual case: no fault of this kind in the scenario
+            return set()
+        return {f.target for f in faults if f.active(t)}
 
     # -- sensors ----------------
     def _sample(self, t: float) -> None:
@@ -191,41 +207,10 @@ class SimRobot:
         cameras_due = [rig for rig, s in self.rigs if s.due(t)]
         if lasers_due or cameras_due:
             world.refresh_scene()
-        dropped = self._fault_targets(FaultKind.LASER_DROPOUT, t)
-        for sensor, _ in lasers_due:
-            if sensor.spec.id not in dropped:
-                scan = sensor.scan(world.scene, pose, t)
-                self._scans[sensor.spec.id] = scan
-                if self._sensor_out is not None:
-                    self._log_sensor(t, f"laser:{sensor.spec.id}", _digest(scan.ranges))
-        frozen = self._fault_targets(FaultKind.CAMERA_FREEZE, t)
-        for rig in cameras_due:
-            unit = self.units[rig.unit]
-            if rig.id in frozen and rig.id in self._cameras:
-                # A frozen camera keeps publishing its last image with fresh stamps.
-                last = self._cameras[rig.id]
-                frame = CameraFrame(t, last.detections, last.image)
-            else:
-                self._exposures[rig.id] = self._exposures.get(rig.id, 0) + 1
-                frame = detect(
-                    rig,
-                    unit.pan,
-                    unit.tilt,
-                    pose,
-                    self.cloud,
-                    rng=self.camera_rng,
-                    pixel_noise=self.scenario.noise.pixel,
-                    dropout=self.scenario.noise.camera_dropout,
-                    occluded=self._occlusion_test(),
-                    stamp=t,
-                )
-                frame = dataclasses.replace(frame, image=self._exposures[rig.id])
-            self._cameras[rig.id] = frame
-            if self._sensor_out is not None:
-                seen = [
-                    (d.feature, d.point, round(d.u, 3), round(d.v, 3)) for d in frame.detections
-                ]
-                self._log_sensor(t, f"camera:{rig.id}", seen)
+        if lasers_due:
+            self._sample_lasers([sensor for sensor, _ in lasers_due], pose, t)
+        if cameras_due:
+            self._sample_cameras(cameras_due, pose, t)
         if self.wheel_schedule.due(t) and not self._fault_targets(FaultKind.WHEEL_FREEZE, t):
             left, right = world.base.wheel_speeds()
             self._wheels = self.wheels.read(left, right, t)
@@ -244,6 +229,56 @@ class SimRobot:
                 self._log_sensor(t, "gps", logged)
         if self.truth_schedule.due(t):
             self._log_truth(t)
+
+    def _sample_lasers(self, lasers: list[LaserSensor], pose: Pose2, t: float) -> None:
+        dropped = self._fault_targets(FaultKind.LASER_DROPOUT, t)
+        scanning = [sensor for sensor in lasers if sensor.spec.id not in dropped]
+        scans = scan_lasers(scanning, self.world.scene, pose, t)
+        for sensor, scan in zip(scanning, scans, strict=True):
+            self._scans[sensor.spec.id] = scan
+            if self._sensor_out is not None:
+                self._log_sensor(t, f"laser:{sensor.spec.id}", _digest(scan.ranges))
+
+    def _sample_cameras(self, cameras_due: list[CameraRig], pose: Pose2, t: float) -> None:
+        frozen = self._fault_targets(FaultKind.CAMERA_FREEZE, t)
+        # Far from every feature no camera can detect anything: detect() would return no
+        # detection without drawing from the camera generator, so it is not called.
+        noise = self.scenario.noise
+        blind = (
+            noise.pixel >= 0.0
+            and 0.0 <= noise.camera_dropout <= 1.0  # else detect() raises
+            and self.cloud.out_of_range(pose.x, pose.y, self._camera_reach)
+        )
+        for rig in cameras_due:
+            unit = self.units[rig.unit]
+            if rig.id in frozen and rig.id in self._cameras:
+                # A frozen camera keeps publishing its last image with fresh stamps.
+                last = self._cameras[rig.id]
+                frame = CameraFrame(t, last.detections, last.image)
+            elif blind:
+                self._exposures[rig.id] = self._exposures.get(rig.id, 0) + 1
+                frame = CameraFrame(t, (), self._exposures[rig.id])
+            else:
+                self._exposures[rig.id] = self._exposures.get(rig.id, 0) + 1
+                frame = detect(
+                    rig,
+                    unit.pan,
+                    unit.tilt,
+                    pose,
+                    self.cloud,
+                    rng=self.camera_rng,
+                    pixel_noise=self.scenario.noise.pixel,
+                    dropout=self.scenario.noise.camera_dropout,
+                    occluded=self._occlusion_test(),
+                    stamp=t,
+                )
+                frame = CameraFrame(frame.stamp, frame.detections, self._exposures[rig.id])
+            self._cameras[rig.id] = frame
+            if self._sensor_out is not None:
+                seen = [
+                    (d.feature, d.point, round(d.u, 3), round(d.v, 3)) for d in frame.detections
+                ]
+                self._log_sensor(t, f"camera:{rig.id}", seen)
 
     def _occlusion_test(self) -> Callable[[NDArray, NDArray], NDArray] | None:
         """The camera occlusion callback: obstacles (not the aircraft) taller than the line."""

@@ -11,6 +11,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 import shapely
 from shapely.geometry import Point
@@ -20,7 +22,7 @@ from shapely.ops import unary_union
 from executive.core.frames import AircraftPlacement, Pose2
 from executive.core.model import LaserSpec, Polygon
 from executive.core.records import GpsFix, ImuReading, LaserScan, WheelSpeeds
-from sim2d.raycast import Scene, cast_scan
+from sim2d.raycast import Scene, cast_scan, cast_scans
 from sim2d.scenario import GpsConditions
 
 
@@ -33,28 +35,52 @@ class LaserSensor:
         self.rng = rng
         self.n = spec.beam_count
         self.angle_min = -spec.fov / 2.0
-        self._buffer = np.empty(self.n)
+        self._mount = Pose2(spec.mount[0], spec.mount[1], spec.mount_yaw)
+        #: the scans it makes: angle_min, resolution, beam count, range
+        self.model = (self.angle_min, spec.resolution, self.n, spec.range)
 
     def pose_in_world(self, robot: Pose2) -> Pose2:
-        return robot @ Pose2(self.spec.mount[0], self.spec.mount[1], self.spec.mount_yaw)
+        return robot @ self._mount
 
     def scan(self, scene: Scene, robot: Pose2, stamp: float) -> LaserScan:
-        pose = self.pose_in_world(robot)
-        ranges = cast_scan(
-            scene,
-            (pose.x, pose.y),
-            pose.theta,
-            self.angle_min,
-            self.spec.resolution,
-            self.n,
-            self.spec.range,
-            out=self._buffer,
-        ).copy()
-        hit = ranges < self.spec.range
-        if self.sigma > 0.0:
-            noise = self.rng.normal(0.0, self.sigma, self.n)
-            ranges[hit] = np.clip(ranges[hit] + noise[hit], 0.0, self.spec.range - 1e-6)
-        return LaserScan(stamp, self.angle_min, self.spec.resolution, self.spec.range, ranges)
+        return scan_lasers((self,), scene, robot, stamp)[0]
+
+
+def scan_lasers(
+    lasers: Sequence[LaserSensor], scene: Scene, robot: Pose2, stamp: float
+) -> list[LaserScan]:
+    """The scans of several lasers of one robot, as ``[laser.scan(...) for laser in
+    lasers]`` (each laser draws its own noise), with the ranges of lasers of one
+    :attr:`~LaserSensor.model` (the usual front and rear pair) cast in one batch."""
+    if not lasers:
+        return []
+    model = lasers[0].model
+    if any(laser.model != model for laser in lasers):
+        return [scan for laser in lasers for scan in scan_lasers((laser,), scene, robot, stamp)]
+    poses = [robot @ laser._mount for laser in lasers]
+    if len(lasers) == 1:
+        ranges = cast_scan(scene, (poses[0].x, poses[0].y), poses[0].theta, *model)[None]
+    else:
+        ranges = cast_scans(scene, [(p.x, p.y) for p in poses], [p.theta for p in poses], *model)
+    noisy = [k for k, laser in enumerate(lasers) if laser.sigma > 0.0]
+    if noisy:
+        # Noise on the returns only, kept within [0, range_max): drawn for every beam
+        # (each laser's n values) and copied where there is a return.
+        range_max = model[3]
+        noise = np.empty((len(noisy), model[2]))
+        for row, k in zip(noise, noisy, strict=True):
+            row[:] = lasers[k].rng.normal(0.0, lasers[k].sigma, model[2])
+        target = ranges if len(noisy) == len(lasers) else ranges[noisy]
+        noise += target
+        np.maximum(noise, 0.0, out=noise)
+        np.minimum(noise, range_max - 1e-6, out=noise)
+        np.copyto(target, noise, where=target < range_max)
+        if target is not ranges:
+            ranges[noisy] = target
+    return [
+        LaserScan(stamp, laser.angle_min, laser.spec.resolution, laser.spec.range, row)
+        for laser, row in zip(lasers, ranges, strict=True)
+    ]
 
 
 class WheelEncoders:
@@ -147,28 +173,33 @@ def sight_lines_blocked(
     o = origin[:2]
     d = targets[:, :2] - o  # (M, 2)
     zo, dz = origin[2], targets[:, 2] - origin[2]
-    owners = np.concatenate((scene.segment_owner, scene.circle_owner))
-    seg = scene.segments
-    if len(seg):
+    n_seg = scene.n_segments
+    if n_seg:
+        seg = scene.segments
         a = seg[:, :2] - o  # (S, 2)
         e = seg[:, 2:] - seg[:, :2]
-        denom = d[:, None, 0] * e[None, :, 1] - d[:, None, 1] * e[None, :, 0]  # (M, S)
+        dx, dy = d[:, 0, None], d[:, 1, None]  # (M, 1)
+        ex, ey = e[:, 0], e[:, 1]  # (S,)
+        ax, ay = a[:, 0], a[:, 1]
+        denom = dx * ey - dy * ex  # (M, S)
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # parallel: t = inf
-            t = (a[None, :, 0] * e[None, :, 1] - a[None, :, 1] * e[None, :, 0]) / denom
-            u = (a[None, :, 0] * d[:, None, 1] - a[None, :, 1] * d[:, None, 0]) / denom
+            t = (ax * ey - ay * ex) / denom
+            u = (ax * dy - ay * dx) / denom
             crosses = (t > 0.0) & (t < 1.0) & (u >= 0.0) & (u <= 1.0)
             z = zo + dz[:, None] * t
-        tall = heights[owners[: len(seg)]][None, :]
-        blocked |= np.any(crosses & (z < tall), axis=1)
-    centers = scene.centers
-    if len(centers):
-        c = centers - o  # (K, 2)
+        crosses &= z < heights[scene.segment_owner]
+        np.logical_or.reduce(crosses, axis=1, out=blocked)
+    if scene.n_circles:
+        c = scene.centers - o  # (K, 2)
         dd = np.maximum(np.einsum("ij,ij->i", d, d), 1e-12)
-        t = np.clip((d @ c.T) / dd[:, None], 0.0, 1.0)  # (M, K): closest approach
-        px = d[:, None, 0] * t - c[None, :, 0]
-        py = d[:, None, 1] * t - c[None, :, 1]
-        inside = px * px + py * py < scene.radii[None, :] ** 2
-        z = zo + dz[:, None] * t
-        tall = heights[owners[len(seg) :]][None, :]
-        blocked |= np.any(inside & (t < 1.0) & (z < tall), axis=1)
+        t = (d @ c.T) / dd[:, None]  # (M, K): closest approach, clipped to [0, 1]
+        np.maximum(t, 0.0, out=t)
+        np.minimum(t, 1.0, out=t)
+        px = d[:, 0, None] * t - c[:, 0]
+        py = d[:, 1, None] * t - c[:, 1]
+        radii = scene.radii
+        inside = px * px + py * py < radii * radii
+        inside &= t < 1.0
+        inside &= zo + dz[:, None] * t < heights[scene.circle_owner]
+        blocked |= np.logical_or.reduce(inside, axis=1)
     return blocked

@@ -8,7 +8,7 @@ static obstacles are static shapes. Any contact of the robot with anything is a 
 event; contacts ahead of the axle press the front bumper, behind it the rear one.
 
 The world also keeps the ray-casting scene the sensors use: static geometry once, moving
-bodies refreshed from one batched read of all body poses (``pymunk.batch``).
+bodies refreshed from their poses in pymunk whenever a sensor is due.
 """
 
 from __future__ import annotations
@@ -19,7 +19,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import pymunk
-import pymunk.batch
 
 from executive.core.frames import Pose2, wrap_angle
 from executive.core.model import Circle
@@ -83,10 +82,7 @@ class World:
         self.static_scene = static
         self.static_obstacles = obstacles  # static obstacles only: camera occluders
         self.owner_height = np.array(self.owner_heights)
-        self._bodies = [self.robot_body] + [m.body for m in self.moving]
-        self._batch_ids: np.ndarray | None = None
-        self._batch_rows = np.zeros(0, dtype=int)
-        self._poses = np.zeros((len(self._bodies), 3))
+        self._poses = np.zeros((len(self.moving), 3))  # x, y, angle of each moving body
         self._read_robot()
         self._read_poses()
         self._build_moving_slots()
@@ -237,6 +233,8 @@ class World:
 
     def bumpers(self) -> tuple[bool, bool]:
         """(front, rear) pressed by a current contact."""
+        if not self._touching:
+            return False, False
         front = any(x >= 0.0 for x, _ in self._touching.values())
         rear = any(x < 0.0 for x, _ in self._touching.values())
         return front, rear
@@ -265,9 +263,12 @@ class World:
         ]
         boxes = [self.moving[k] for k in self._box_movers]
         discs = [self.moving[k] for k in self._disc_movers]
-        self._box_half = np.array(
-            [(m.shape_body.length / 2, m.shape_body.width / 2) for m in boxes]
-        ).reshape(-1, 2)
+        half = np.array([(m.shape_body.length / 2, m.shape_body.width / 2) for m in boxes])
+        # Corners counter-clockwise, as Scene.from_box makes them: (+l,+w)... per box, as
+        # (k, 4) offsets along and across each box.
+        local = np.array([(1, 1), (-1, 1), (-1, -1), (1, -1)], dtype=float)
+        self._box_lx = local[None, :, 0] * half.reshape(-1, 2)[:, 0, None]
+        self._box_ly = local[None, :, 1] * half.reshape(-1, 2)[:, 1, None]
         parts = [
             Scene.from_box(
                 m.agent.x, m.agent.y, m.agent.heading, m.shape_body.length, m.shape_body.width
@@ -288,23 +289,24 @@ class World:
             (self.scene, self.static_scene.n_segments, self.static_scene.n_circles),
             (self.occluders, self.static_obstacles.n_segments, self.static_obstacles.n_circles),
         ]
+        # the discs' centre rows of both scenes (views: the scenes are rewritten in place)
+        self._disc_index = np.array(self._disc_movers, dtype=np.intp)
+        self._disc_centers = [
+            scene.centers[circ0 : circ0 + len(discs)] for scene, _, circ0 in self._slots
+        ]
         self.refresh_scene()
 
     def refresh_scene(self) -> None:
         """Move the movers' slots of the ray-casting scenes to their current poses
-        (read from pymunk in one batch)."""
+        (read from pymunk)."""
         if not self.moving:
             return
         self._read_poses()
-        movers = self._poses[1:]  # row 0 is the robot
+        movers = self._poses
         if self._box_movers:
             x, y, heading = movers[self._box_movers].T
             c, s = np.cos(heading), np.sin(heading)
-            hl, hw = self._box_half[:, 0], self._box_half[:, 1]
-            # Corners counter-clockwise, as Scene.from_box made them: (+l,+w)... per box.
-            local = np.array([(1, 1), (-1, 1), (-1, -1), (1, -1)], dtype=float)
-            lx = local[None, :, 0] * hl[:, None]
-            ly = local[None, :, 1] * hw[:, None]
+            lx, ly = self._box_lx, self._box_ly
             cx = x[:, None] + c[:, None] * lx - s[:, None] * ly
             cy = y[:, None] + s[:, None] * lx + c[:, None] * ly
             corners = np.stack((cx, cy), axis=2)  # (k, 4, 2)
@@ -312,42 +314,29 @@ class World:
             for scene, seg0, _ in self._slots:
                 scene.set_segments(edges.reshape(-1, 4), seg0)
         if self._disc_movers:
-            xy = movers[self._disc_movers, :2]
-            for scene, _, circ0 in self._slots:
-                scene.centers[circ0 : circ0 + len(xy)] = xy
+            xy = movers[self._disc_index, :2]
+            for centers in self._disc_centers:
+                centers[:] = xy
 
     def _read_poses(self) -> None:
-        """Read every body's pose in one batch; update the movers' agents."""
-        self._poses = self._batch_poses()
-        for m, (x, y, _) in zip(self.moving, self._poses[1:], strict=True):
-            m.agent.x, m.agent.y = float(x), float(y)
+        """Read every moving body's pose from pymunk; update the movers' agents.
 
-    def _batch_poses(self) -> np.ndarray:
-        """(N, 3) x, y, angle of the robot then every moving body, read in one batch.
-
-        The batch lists the space's bodies in chipmunk's internal order (by type, and the
-        static body when it has shapes), so rows are matched by body id; the permutation
-        is kept while the set of bodies does not change.
+        A handful of bodies: direct reads cost less than one ``pymunk.batch`` call.
         """
-        fields = pymunk.batch.BodyFields
-        data = pymunk.batch.Buffer()
-        pymunk.batch.get_space_bodies(
-            self.space, fields.BODY_ID | fields.POSITION | fields.ANGLE, data
-        )
-        ids = np.frombuffer(data.int_buf(), dtype=np.int64)
-        if self._batch_ids is None or not np.array_equal(ids, self._batch_ids):
-            row = {int(body_id): k for k, body_id in enumerate(ids)}
-            self._batch_rows = np.array([row[b.id] for b in self._bodies])
-            self._batch_ids = ids.copy()
-        rows = np.frombuffer(data.float_buf(), dtype=np.float64).reshape(-1, 3)
-        return rows[self._batch_rows]
+        rows = []
+        for m in self.moving:
+            p = m.body.position
+            m.agent.x, m.agent.y = p.x, p.y
+            rows.append((p.x, p.y, m.body.angle))
+        if rows:
+            self._poses = np.array(rows)
 
     def obstacle_poses(self) -> list[tuple[str, float, float, float]]:
         """Ground truth of every moving obstacle: (id, x, y, heading)."""
         self._read_poses()
         return [
             (m.agent.id, float(x), float(y), float(angle))
-            for m, (x, y, angle) in zip(self.moving, self._poses[1:], strict=True)
+            for m, (x, y, angle) in zip(self.moving, self._poses, strict=True)
         ]
 
     # -- stepping -----------------------------------------------------------------------------
