@@ -208,16 +208,23 @@ class ScanPoints:
         return len(self.ranges)
 
 
-def merge_scans(scans: Sequence[tuple[LaserScan, Pose2]]) -> ScanPoints:
+def merge_scans(
+    scans: Sequence[tuple[LaserScan, Pose2]], robot_points: Sequence[FloatArray] | None = None
+) -> ScanPoints:
     """Step 1: the returns of every ``(scan, mount)`` in R; ``mount`` is R <- scanner.
 
     The stamp is the latest scan's (the caller passes the robot pose at that time).
+    ``robot_points``: each scan's returns in R if the caller has them already
+    (:func:`behaviours.laws.obstacles.scan_to_robot` of it), else they are computed.
     """
     xy, ranges, scanner, beam = [np.zeros((0, 2))], [np.zeros(0)], [], []
     for k, (scan, mount) in enumerate(scans):
         r = scan.ranges
-        xy.append(scan_to_robot(r, scan.angle_min, scan.angle_increment, scan.range_max, mount))
-        hit = np.flatnonzero(r < scan.range_max)
+        if robot_points is None:
+            xy.append(scan_to_robot(r, scan.angle_min, scan.angle_increment, scan.range_max, mount))
+        else:
+            xy.append(robot_points[k])
+        hit = (r < scan.range_max).nonzero()[0]
         beam.append(hit)
         ranges.append(r[hit])
         scanner.append(np.full(len(hit), k, dtype=np.intp))
@@ -250,7 +257,11 @@ class _Links:
         self.scanner, self.beam = points.scanner[sel], points.beam[sel]
 
     def __call__(
-        self, a: IntArray | slice, b: IntArray | slice, max_gap: int, scale: int
+        self,
+        a: IntArray | slice | tuple[None, slice],
+        b: IntArray | slice,
+        max_gap: int,
+        scale: int,
     ) -> BoolArray:
         """True for the pairs (a, b) of one scanner, 1 to ``max_gap`` beams apart, closer
         than D_max (:func:`breakpoint_distance` at the smaller range and their gap, the
@@ -267,13 +278,27 @@ class _Links:
 
     def window(self, count: int, max_gap: int, scale: int) -> tuple[IntArray, IntArray]:
         """The linked pairs (a, b) with ``a < b <= a + count`` (positions in this
-        subset), as two arrays."""
+        subset), as two arrays, by offset ``b - a`` then by ``a``."""
         n = len(self.x)
-        a, b = [np.zeros(0, np.intp)], [np.zeros(0, np.intp)]
-        for j in range(1, min(count, n - 1) + 1):
-            a.append(np.flatnonzero(self(slice(0, n - j), slice(j, n), max_gap, scale)))
-            b.append(a[-1] + j)
-        return np.concatenate(a), np.concatenate(b)
+        m = min(count, n - 1)
+        if m < 1:
+            return np.zeros(0, np.intp), np.zeros(0, np.intp)
+        b, inside = _pair_grid(n, m)
+        offset, a = (self((None, slice(None)), b, max_gap, scale) & inside).nonzero()
+        return a, a + offset + 1
+
+
+@lru_cache(maxsize=256)
+def _pair_grid(n: int, m: int) -> tuple[IntArray, BoolArray]:
+    """The pairs ``(a, a + j)`` of ``n`` points, ``a`` from 0 to ``n - 1`` (columns) and
+    the offset j from 1 to ``m`` (rows): the grid (m, n) of ``a + j`` (clipped to the last
+    point), and the mask of the pairs that exist (``a + j < n``)."""
+    b = np.arange(n) + np.arange(1, m + 1)[:, None]
+    inside = b < n
+    b = np.minimum(b, n - 1)
+    for grid in (b, inside):
+        grid.flags.writeable = False
+    return b, inside
 
 
 def neighbour_mask(points: ScanPoints, params: ClusterParams) -> BoolArray:
@@ -299,7 +324,7 @@ def segment(points: ScanPoints, kept: BoolArray, params: ClusterParams) -> IntAr
     consecutive from 0.
     """
     labels = np.full(len(points), -1, dtype=np.intp)
-    idx = np.flatnonzero(kept)
+    idx = kept.nonzero()[0]
     n = len(idx)
     if n < params.min_points:
         return labels
@@ -307,7 +332,7 @@ def segment(points: ScanPoints, kept: BoolArray, params: ClusterParams) -> IntAr
     a, b = linked.window(params.skip, params.max_gap, params.gap_scale_limit)
     root = _components(n, a, b)
     size = np.bincount(root, minlength=n)
-    members = np.flatnonzero(size[root] >= params.min_points)
+    members = (size[root] >= params.min_points).nonzero()[0]
     if len(members) == 0:
         return labels
     label = _renumber(root[members], n)
@@ -325,7 +350,7 @@ def _renumber(root: IntArray, n: int) -> IntArray:
     """Map node ids below ``n`` to consecutive labels from 0, in increasing order."""
     used = np.zeros(n, dtype=np.intp)
     used[root] = 1
-    return (np.cumsum(used) - 1)[root]
+    return (used.cumsum() - 1)[root]
 
 
 def _components(n: int, a: IntArray, b: IntArray) -> IntArray:
@@ -358,17 +383,18 @@ def _merge_across_scanners(
     Those pairs closer than ``distance`` link their clusters. Returns the labels
     renumbered from 0.
     """
-    order = np.argsort(np.arctan2(y, x))
-    xs, ys, ss, ls = x[order], y[order], scanner[order], label[order]
-    a, b = [], []
-    for j in range(1, min(_ANGULAR_NEIGHBOURS, len(order) - 1) + 1):
-        dx, dy = xs[j:] - xs[:-j], ys[j:] - ys[:-j]
-        hit = ((dx * dx + dy * dy) <= distance * distance) & (ss[j:] != ss[:-j])
-        a.append(ls[:-j][hit])
-        b.append(ls[j:][hit])
-    a_all, b_all = np.concatenate(a), np.concatenate(b)
-    if len(a_all) == 0:
+    order = np.arctan2(y, x).argsort()
+    n = len(order)
+    m = min(_ANGULAR_NEIGHBOURS, n - 1)
+    if m < 1:
         return label
+    j, inside = _pair_grid(n, m)  # every point and each of its next m in bearing order
+    i, j = order, order[j]
+    dx, dy = x[j] - x[i], y[j] - y[i]
+    hit = ((dx * dx + dy * dy) <= distance * distance) & (scanner[j] != scanner[i]) & inside
+    if not hit.any():
+        return label
+    a_all, b_all = label[i[hit.nonzero()[1]]], label[j[hit]]
     n = int(label.max()) + 1
     return _renumber(_components(n, a_all, b_all), n)[label]
 
@@ -405,19 +431,26 @@ def occluded(
     """
     n = len(order)
     lo, hi = _run_ends(points.scanner[order], first)
-    kidx = np.flatnonzero(kept)
-    rank = np.cumsum(kept) - 1  # the index in kidx of each kept point
+    kidx = kept.nonzero()[0]
+    rank = kept.cumsum() - 1  # the index in kidx of each kept point
     table = _ratio_table(points.increments, params.incidence_limit, params.gap_scale_limit)
+    # both ends at once: the low ends look one kept return back, the high ends one ahead
+    at_lo, at_hi = lo.nonzero()[0], hi.nonzero()[0]
+    n_lo = len(at_lo)
+    at = np.concatenate((at_lo, at_hi))
+    step = np.ones(len(at), dtype=np.intp)
+    step[:n_lo] = -1
+    p = order[at]
+    q = kidx[np.minimum(np.maximum(rank[p] + step, 0), len(kidx) - 1)]
+    gap = np.abs(points.beam[q] - points.beam[p])
+    scanner = points.scanner[p]
+    ok = (points.scanner[q] == scanner) & (gap > 0) & (gap <= params.max_gap)
+    r = points.ranges[q]
+    ahead = r + r * table[scanner, np.minimum(gap, params.gap_scale_limit)]
+    verdict = ok & (ahead + 3.0 * params.range_sigma < points.ranges[p])
     hidden = np.zeros(n, dtype=bool)
-    for end, step in ((lo, -1), (hi, 1)):
-        at = np.flatnonzero(end)
-        p = order[at]
-        q = kidx[np.minimum(np.maximum(rank[p] + step, 0), len(kidx) - 1)]
-        gap = np.abs(points.beam[q] - points.beam[p])
-        ok = (points.scanner[q] == points.scanner[p]) & (gap > 0) & (gap <= params.max_gap)
-        r = points.ranges[q]
-        ahead = r + r * table[points.scanner[p], np.minimum(gap, params.gap_scale_limit)]
-        hidden[at] = ok & (ahead + 3.0 * params.range_sigma < points.ranges[p])
+    hidden[at_lo] = verdict[:n_lo]
+    hidden[at_hi] = verdict[n_lo:]  # a run of one point: its high end's verdict
     return np.logical_or.reduceat(hidden, first)
 
 
@@ -456,9 +489,11 @@ def line_ends_visible(
         return visible
     first = start[:-1]
     lo, hi = _run_ends(points.scanner[order], first)
-    at = np.concatenate((np.flatnonzero(lo), np.flatnonzero(hi)))
-    step = np.concatenate((np.full(lo.sum(), -1), np.full(hi.sum(), 1)))
-    cluster = np.searchsorted(start, at, side="right") - 1
+    at_lo = lo.nonzero()[0]
+    at = np.concatenate((at_lo, hi.nonzero()[0]))
+    step = np.ones(len(at), dtype=np.intp)
+    step[: len(at_lo)] = -1
+    cluster = start.searchsorted(at, side="right") - 1
     keep = is_line[cluster]
     at, step, cluster = at[keep], step[keep], cluster[keep]
     p = order[at]
@@ -519,20 +554,18 @@ class ClusterFits:
     rms: FloatArray
 
 
-#: rows of a symmetric 3x3 system stacked as (a11, a12, a13, a22, a23, a33, b1, b2, b3):
-#: the cofactors c_ij = a[P] a[Q] - a[R] a[S] in the order (c11, c12, c13, c22, c23, c33),
-#: and the adjugate as indices into them
-_COF = np.array([[3, 2, 1, 0, 1, 0], [5, 4, 4, 5, 2, 3], [4, 1, 2, 2, 0, 1], [4, 5, 3, 2, 4, 1]])
-_ADJ = np.array([[0, 1, 2], [1, 3, 4], [2, 4, 5]])
-
-
 def _solve_sym3(s: FloatArray) -> FloatArray:
     """Batched symmetric 3x3 solve by the adjugate (Cramer's rule): ``s`` (9, C) as
     (a11, a12, a13, a22, a23, a33, b1, b2, b3) per column; returns x (3, C), inf or NaN
     where the system is singular."""
-    cof = s[_COF[0]] * s[_COF[1]] - s[_COF[2]] * s[_COF[3]]
-    det = (s[:3] * cof[:3]).sum(axis=0)
-    return (cof[_ADJ] * s[6:9]).sum(axis=1) / det
+    a11, a12, a13, a22, a23, a33, b1, b2, b3 = s
+    c11, c12, c13 = a22 * a33 - a23 * a23, a13 * a23 - a12 * a33, a12 * a23 - a13 * a22
+    c22, c23, c33 = a11 * a33 - a13 * a13, a12 * a13 - a11 * a23, a11 * a22 - a12 * a12
+    det = a11 * c11 + a12 * c12 + a13 * c13
+    x1 = c11 * b1 + c12 * b2 + c13 * b3  # the adjugate times b
+    x2 = c12 * b1 + c22 * b2 + c23 * b3
+    x3 = c13 * b1 + c23 * b2 + c33 * b3
+    return np.array((x1, x2, x3)) / det
 
 
 class _Batch:
@@ -548,11 +581,11 @@ class _Batch:
         first = start[:-1]
         self.start = first
         self.count = count = start[1:] - first
-        self.of = np.repeat(np.arange(len(first)), count)
+        self.of = np.arange(len(first)).repeat(count)
         self.centroid = np.add.reduceat(xy, first, axis=0) / count[:, None]
         u = (xy - self.centroid[self.of]).T.copy()
         self.x, self.y = u[0], u[1]
-        self.buf = np.empty((9, len(xy)))
+        self.r2 = self.x * self.x + self.y * self.y  # squared distances to the centroid
         sub = first[:, None] + (np.arange(n_sub) * count[:, None]) // n_sub
         self.sub_x, self.sub_y = self.x[sub], self.y[sub]
         part, parts = self.PARTS
@@ -567,10 +600,7 @@ class _Batch:
 
     def sums(self, *rows: FloatArray) -> FloatArray:
         """Per-cluster sums of each row: (len(rows), C)."""
-        buf = self.buf[: len(rows)]
-        for out, row in zip(buf, rows, strict=True):
-            out[:] = row
-        return np.add.reduceat(buf, self.start, axis=1)
+        return np.add.reduceat(np.array(rows, dtype=float), self.start, axis=1)
 
     @staticmethod
     def best(residual: FloatArray, valid: BoolArray, eps: float) -> tuple[IntArray, BoolArray]:
@@ -578,15 +608,18 @@ class _Batch:
         (H, C, n_sub), overwritten), and whether it is valid."""
         np.square(residual, out=residual)
         np.minimum(residual, eps * eps, out=residual)
-        cost = np.where(valid, residual.sum(axis=2), np.inf)
-        return cost.argmin(axis=0), np.isfinite(cost.min(axis=0))
+        cost = np.where(valid, np.add.reduce(residual, axis=2), np.inf)
+        return cost.argmin(axis=0), np.isfinite(np.minimum.reduce(cost, axis=0))
 
-    def score(self, residual: FloatArray, eps: float) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """MSAC cost, inlier fraction and inlier rms of per-point residuals (C each)."""
+    def score(
+        self, residual: FloatArray, eps: float
+    ) -> tuple[FloatArray, FloatArray, FloatArray, BoolArray]:
+        """MSAC cost, inlier fraction and inlier rms of per-point residuals (C each), and
+        the inlier mask (per point)."""
         inlier = residual < eps
         sq = residual * residual
         cost, n_in, sq_in = self.sums(np.minimum(sq, eps * eps), inlier, np.where(inlier, sq, 0))
-        return cost, n_in / self.count, np.sqrt(sq_in / n_in)
+        return cost, n_in / self.count, np.sqrt(sq_in / n_in), inlier
 
 
 def _fit_lines(
@@ -608,17 +641,15 @@ def _fit_lines(
     for _ in range(params.refinements):  # principal axis of the inliers' scatter
         w = (np.abs(nx[of] * x + ny[of] * y - off[of]) < eps).astype(float)
         wx, wy = x * w, y * w
-        sw, sx, sy, sxx, sxy, syy = b.sums(w, wx, wy, wx * x, wx * y, wy * y)
-        mx, my = sx / sw, sy / sw
-        theta = 0.5 * np.arctan2(
-            2.0 * (sxy / sw - mx * my), sxx / sw - mx * mx - syy / sw + my * my
-        )
+        s = b.sums(w, wx, wy, wx * x, wx * y, wy * y)
+        mx, my, mxx, mxy, myy = s[1:] / s[0]  # the inliers' means of x, y, x^2, xy, y^2
+        theta = 0.5 * np.arctan2(2.0 * (mxy - mx * my), mxx - mx * mx - myy + my * my)
         nx, ny = -np.sin(theta), np.cos(theta)
         off = nx * mx + ny * my
-    res = np.abs(nx[of] * x + ny[of] * y - off[of])
-    cost, frac, rms = b.score(res, eps)
-    t = ny[of] * x - nx[of] * y  # along the direction (ny, -nx)
-    inlier = res < eps
+    nx_of, ny_of = nx[of], ny[of]
+    res = np.abs(nx_of * x + ny_of * y - off[of])
+    cost, frac, rms, inlier = b.score(res, eps)
+    t = ny_of * x - nx_of * y  # along the direction (ny, -nx)
     t0 = np.minimum.reduceat(np.where(inlier, t, np.inf), b.start)
     t1 = np.maximum.reduceat(np.where(inlier, t, -np.inf), b.start)
     ends = np.empty((len(best), 4))
@@ -652,7 +683,7 @@ def _fit_circles(
         gx, gy = x - px[of], y - py[of]
         w = (np.abs(np.sqrt(gx * gx + gy * gy) - radius[of]) < eps).astype(float)
         if rnd == 0:  # Kasa: x^2 + y^2 + D x + E y + F = 0 in least squares
-            z = x * x + y * y
+            z = b.r2
             wx, wy, wz = x * w, y * w, z * w
             d, e, f = _solve_sym3(b.sums(wx * x, wx * y, wx, wy * y, wy, w, -wx * z, -wy * z, -wz))
             px, py = -0.5 * d, -0.5 * e
@@ -670,7 +701,7 @@ def _fit_circles(
     gx, gy = x - px[of], y - py[of]
     res = np.abs(np.sqrt(gx * gx + gy * gy) - radius[of])
     res[np.isnan(res)] = np.inf
-    cost, frac, rms = b.score(res, eps)
+    cost, frac, rms, _ = b.score(res, eps)
     ok &= (frac >= params.min_inlier_fraction) & _circle_ok(px, py, radius, outward, params)
     circle = np.empty((len(best), 3))
     circle[:, 0], circle[:, 1], circle[:, 2] = px, py, radius
@@ -717,7 +748,7 @@ def fit_clusters(
     return ClusterFits(
         kind=kind,
         centroid=b.centroid,
-        size=np.sqrt(np.maximum.reduceat(b.x * b.x + b.y * b.y, b.start)),
+        size=np.sqrt(np.maximum.reduceat(b.r2, b.start)),
         line=np.where(is_line, ends, np.nan),
         circle=np.where(is_circle[:, None], circle, np.nan),
         rms=np.where(is_line[:, 0], rms_l, np.where(is_circle, rms_c, np.nan)),
@@ -860,21 +891,27 @@ class ScanClusterer:
         far = points.ranges[order] >= limit[points.scanner[order]]
         return np.logical_or.reduceat(far, first)
 
-    def detect(self, scans: Sequence[tuple[LaserScan, Pose2]]) -> Clusters:
+    def detect(
+        self,
+        scans: Sequence[tuple[LaserScan, Pose2]],
+        robot_points: Sequence[FloatArray] | None = None,
+    ) -> Clusters:
         """Detect the obstacles in ``scans``: ``(scan, mount)`` pairs, ``mount`` the
         scanner's pose in R. Pass every new scan of every scanner, together when they
-        were taken together; the result is stamped with the latest scan's stamp."""
+        were taken together; the result is stamped with the latest scan's stamp.
+        ``robot_points``: optionally, each scan's returns in R already computed
+        (:func:`merge_scans`)."""
         p = self.params
-        pts = merge_scans(scans)
+        pts = merge_scans(scans, robot_points)
         kept = neighbour_mask(pts, p)
         labels = segment(pts, kept, p)
-        members = np.flatnonzero(labels >= 0)
+        members = (labels >= 0).nonzero()[0]
         returns, isolated = len(pts), len(pts) - int(np.count_nonzero(kept))
         if len(members) == 0:
             return Clusters.empty(pts.stamp, returns, isolated)
-        order = members[np.argsort(labels[members], kind="stable")]
+        order = members[labels[members].argsort(kind="stable")]
         count = np.bincount(labels[order])
-        start = np.concatenate(([0], np.cumsum(count)))
+        start = np.concatenate(([0], count.cumsum()))
         xy = np.column_stack((pts.x[order], pts.y[order]))
         first = start[:-1]
         fits = fit_clusters(xy, start, pts.sensors[pts.scanner[order[first]]], p, self.rng)

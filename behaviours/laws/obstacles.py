@@ -19,7 +19,7 @@ def scan_to_robot(
 ) -> FloatArray:
     """Returns shorter than ``range_max`` as (N, 2) points in the robot frame."""
     hit = ranges < range_max
-    angles = angle_min + increment * np.flatnonzero(hit)
+    angles = angle_min + increment * hit.nonzero()[0]
     r = ranges[hit]
     c, s = math.cos(mount.theta), math.sin(mount.theta)
     lx, ly = r * np.cos(angles), r * np.sin(angles)
@@ -29,8 +29,14 @@ def scan_to_robot(
 def footprint_distances(points: FloatArray, length: float, width: float) -> FloatArray:
     """Distance of each point (robot frame) to the length x width rectangle at the axle
     centre; 0 for a point on or inside it."""
-    dx = np.maximum(np.abs(points[:, 0]) - length / 2.0, 0.0)
-    dy = np.maximum(np.abs(points[:, 1]) - width / 2.0, 0.0)
+    return footprint_distances_xy(points[:, 0], points[:, 1], length, width)
+
+
+def footprint_distances_xy(x: FloatArray, y: FloatArray, length: float, width: float) -> FloatArray:
+    """:func:`footprint_distances` of the points of coordinates ``x``, ``y`` (any
+    shape)."""
+    dx = np.maximum(np.abs(x) - length / 2.0, 0.0)
+    dy = np.maximum(np.abs(y) - width / 2.0, 0.0)
     return np.hypot(dx, dy)
 
 

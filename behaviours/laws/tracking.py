@@ -89,13 +89,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import linear_sum_assignment
 
 from behaviours.laws.laser_clusters import BLOB, CIRCLE, KIND_NAMES, LINE, Clusters
-from behaviours.laws.obstacles import footprint_distances
+from behaviours.laws.obstacles import footprint_distances, footprint_distances_xy
 from executive.core.frames import FloatArray, Pose2
 from executive.core.records import Danger, TrackedObstacle
 
@@ -105,6 +106,8 @@ _TWO_PI = 2.0 * math.pi
 #: cost of a gated-out pair in the assignment (never chosen over a gated-in one)
 _FORBIDDEN = 1e9
 _NEAR, _ON_PATH, _IMMINENT = int(Danger.NEAR), int(Danger.ON_PATH), int(Danger.IMMINENT)
+#: the :class:`Danger` of each code
+_DANGERS = {int(level): level for level in Danger}
 
 
 # -- danger ---------------------------------------------------------------------------------------
@@ -158,6 +161,32 @@ def path_distance(points: FloatArray, v: float, omega: float, length: float) -> 
     return np.where(along <= sweep, to_arc, to_ends)
 
 
+@lru_cache(maxsize=8)
+def _instants(samples: int, horizon: float) -> FloatArray:
+    """The ``samples`` instants from 0 to ``horizon`` of the danger predictions."""
+    t = np.arange(samples) * (horizon / (samples - 1))
+    t.flags.writeable = False
+    return t
+
+
+@lru_cache(maxsize=8)
+def _robot_motion(
+    v: float, omega: float, samples: int, horizon: float
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """The robot's pose at each instant of :func:`_instants` on the exact arc of
+    constant ``(v, omega)``: position ``(rx, ry)`` and heading's cosine and sine."""
+    t = _instants(samples, horizon)
+    heading = omega * t
+    c, s = np.cos(heading), np.sin(heading)
+    if abs(omega) > 1e-12:
+        rx, ry = v * s / omega, v * (1.0 - c) / omega
+    else:
+        rx, ry = v * t, np.zeros(samples)
+    for a in (rx, ry, c, s):
+        a.flags.writeable = False
+    return rx, ry, c, s
+
+
 def danger_level(
     position: FloatArray,
     velocity: FloatArray,
@@ -180,23 +209,14 @@ def danger_level(
     frame); IMMINENT: on the path with the first contact within ``imminent_time``;
     NEAR: ``clearance <= r_oa_trigger``.
     """
-    t = np.arange(params.samples) * (params.horizon / (params.samples - 1))
+    t = _instants(params.samples, params.horizon)
     q = position[:, None, :] + velocity[:, None, :] * t[:, None]  # (T, K, 2)
     reach = size[:, None] + params.margin
-    # the robot's pose at each instant: exact arc of constant (v, omega)
-    heading = omega * t
-    if abs(omega) > 1e-12:
-        rx, ry = v * np.sin(heading) / omega, v * (1.0 - np.cos(heading)) / omega
-    else:
-        rx, ry = v * t, np.zeros_like(t)
+    rx, ry, c, s = _robot_motion(v, omega, params.samples, params.horizon)
     dx, dy = q[..., 0] - rx, q[..., 1] - ry
-    c, s = np.cos(heading), np.sin(heading)
-    local = np.empty_like(q)
-    local[..., 0] = c * dx + s * dy
-    local[..., 1] = c * dy - s * dx
-    gap = footprint_distances(local.reshape(-1, 2), params.length, params.width)
-    contact = gap.reshape(q.shape[:2]) <= reach
-    first = np.where(contact.any(axis=1), t[np.argmax(contact, axis=1)], np.inf)
+    gap = footprint_distances_xy(c * dx + s * dy, c * dy - s * dx, params.length, params.width)
+    contact = gap <= reach
+    first = np.where(contact.any(axis=1), t[contact.argmax(axis=1)], np.inf)
     corridor = path_distance(q, v, omega, abs(v) * params.horizon + params.length / 2.0)
     on_path = (corridor <= reach + params.width / 2.0).any(axis=1) | np.isfinite(first)
     level = (clearance <= params.r_oa_trigger).astype(np.int8) * _NEAR
@@ -313,7 +333,7 @@ class ObstacleTracker:
         is_line = (clusters.kind == LINE) & (np.hypot(ends[:, 0], ends[:, 1]) > 1e-9)
         direction = np.where(is_line[:, None], ends, 1.0) @ pose.rotation().T
         direction /= np.hypot(direction[:, 0], direction[:, 1])[:, None]
-        normal = np.column_stack((-direction[:, 1], direction[:, 0]))
+        normal = direction[:, ::-1] * np.array((-1.0, 1.0))
         line_track = 2 * self.votes[:, LINE] > self.hits
         pair_line = line_track[:, None] & is_line[None, :]
         # ... and along itself to within the centroid's variance when seen whole (the
@@ -361,11 +381,12 @@ class ObstacleTracker:
         )
         point = ~by_line & ~anchor & ~shape_off
         self._correct(rows[point], z[cols[point]], r_pair[rows[point], cols[point]])
-        for axis in np.eye(2):
-            n_anchor = int(anchor.sum())
-            self._reanchor(
-                rows[anchor], np.tile(axis, (n_anchor, 1)), z[cols[anchor]], r[cols[anchor]]
-            )
+        if anchor.any():
+            rows_a, z_a, r_a = rows[anchor], z[cols[anchor]], r[cols[anchor]]
+            for k in range(2):  # along x, then along y
+                axis = np.zeros((len(rows_a), 2))
+                axis[:, k] = 1.0
+                self._reanchor(rows_a, axis, z_a, r_a)
         rows_l, cols_l = rows[by_line], cols[by_line]
         if len(rows_l):
             direction, normal = direction[cols_l], normal[cols_l]
@@ -394,7 +415,7 @@ class ObstacleTracker:
         self._describe(rows, cols, clusters, pose, t, ~partial[rows, cols])
         fresh = np.ones(len(clusters), dtype=bool)
         fresh[cols] = False
-        new = np.flatnonzero(fresh)
+        new = fresh.nonzero()[0]
         self._spawn(z[new], r[new], t, whole[new], clusters.kind[new])
         rows = np.arange(len(self) - len(new), len(self))
         self._describe(rows, new, clusters, pose, t, np.ones(len(new), dtype=bool))
@@ -494,10 +515,9 @@ class ObstacleTracker:
         self.state[rows] = x
         m = len(rows)
         basis = np.zeros((m, 4, 4))  # rows: n, t for the position, then for the velocity
-        basis[:, 0, 0], basis[:, 0, 1] = -t[:, 1], t[:, 0]
-        basis[:, 1, :2] = t
-        basis[:, 2, 2], basis[:, 2, 3] = -t[:, 1], t[:, 0]
-        basis[:, 3, 2:] = t
+        normal = t[:, ::-1] * np.array((-1.0, 1.0))
+        basis[:, 0, :2] = basis[:, 2, 2:] = normal
+        basis[:, 1, :2] = basis[:, 3, 2:] = t
         p = basis @ self.covariance[rows] @ basis.transpose(0, 2, 1)
         p[:, 1, :] = 0.0
         p[:, :, 1] = 0.0
@@ -527,7 +547,9 @@ class ObstacleTracker:
         p = np.zeros((n, 4, 4))
         p[:, 0, 0] = p[:, 1, 1] = r
         p[:, 2, 2] = p[:, 3, 3] = self.params.initial_speed_sigma**2
-        self.state = np.concatenate((self.state, np.column_stack((z, np.zeros((n, 2))))))
+        state = np.zeros((n, 4))
+        state[:, :2] = z
+        self.state = np.concatenate((self.state, state))
         self.covariance = np.concatenate((self.covariance, p))
         self.ids = np.concatenate((self.ids, self._next_id + np.arange(n)))
         self._next_id += n
@@ -597,7 +619,7 @@ class ObstacleTracker:
     def _report(
         self, pose: Pose2, velocity: tuple[float, float], t: float
     ) -> tuple[TrackedObstacle, ...]:
-        out = np.flatnonzero(self.hits >= self.params.confirm_hits)
+        out = (self.hits >= self.params.confirm_hits).nonzero()[0]
         if len(out) == 0:
             return ()
         inv = pose.inverse()
@@ -620,7 +642,7 @@ class ObstacleTracker:
             self.clearance[out],
         )
         danger = danger_level(position, speed, size, clearance, *velocity, self.danger)
-        kind = np.argmax(self.votes[out], axis=1)
+        kind = self.votes[out].argmax(axis=1)
         ends = inv.apply(self.line[out].reshape(-1, 2)).reshape(-1, 4)
         shapes = [
             (x, y, r) if k == CIRCLE else tuple(e) if k == LINE else ()
@@ -642,7 +664,7 @@ class ObstacleTracker:
                 size=sz,
                 clearance=cl,
                 age=t - b,
-                danger=Danger(d),
+                danger=_DANGERS[d],
                 shape=sh,
             )
             for i, k, (x, y), (vx, vy), cov, sz, cl, b, d, sh in zip(

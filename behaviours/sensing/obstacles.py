@@ -72,6 +72,7 @@ class SenseObstacles(Node):
         self.danger = self.tracker.danger
         self.walls = VirtualWalls(zones, platform.length, platform.width)
         self._seen: dict[str, float] = {}
+        self._points: dict[str, tuple[LaserScan, np.ndarray]] = {}
         self._raw = (np.zeros((0, 2)), math.inf, 0.0)
         self._tracks: tuple[TrackedObstacle, ...] = ()
         self._odom = Pose2(0.0, 0.0, 0.0)
@@ -123,8 +124,12 @@ class SenseObstacles(Node):
         scans = [(lid, s) for lid, s in frame.scans.items() if lid in self.mounts]
         fresh = [(s, self.mounts[lid]) for lid, s in scans if self._seen.get(lid) != s.stamp]
         if fresh:
-            self._raw = self._closest(scans)
-            clusters = self.clusterer.detect(fresh)
+            robot_points = {lid: self._robot_points(lid, s) for lid, s in scans}
+            self._raw = self._closest(list(robot_points.values()))
+            clusters = self.clusterer.detect(
+                fresh,
+                [robot_points[lid] for lid, s in scans if self._seen.get(lid) != s.stamp],
+            )
             pose = self._odometry_at(clusters.stamp)
             self._tracks = self.tracker.update(clusters, pose, self._velocity)
             for lid, s in scans:
@@ -154,11 +159,20 @@ class SenseObstacles(Node):
         )
         return py_trees.common.Status.SUCCESS
 
-    def _closest(self, scans: list[tuple[str, LaserScan]]) -> tuple[np.ndarray, float, float]:
-        parts = [
-            scan_to_robot(s.ranges, s.angle_min, s.angle_increment, s.range_max, self.mounts[lid])
-            for lid, s in scans
-        ]
+    def _robot_points(self, lid: str, scan: LaserScan) -> np.ndarray:
+        """The returns of laser ``lid``'s ``scan`` in R, computed once per scan (the same
+        scan is read again on the ticks before the next one arrives)."""
+        cached = self._points.get(lid)
+        if cached is not None and cached[0] is scan:
+            return cached[1]
+        mount = self.mounts[lid]
+        points = scan_to_robot(
+            scan.ranges, scan.angle_min, scan.angle_increment, scan.range_max, mount
+        )
+        self._points[lid] = (scan, points)
+        return points
+
+    def _closest(self, parts: list[np.ndarray]) -> tuple[np.ndarray, float, float]:
         points = np.vstack(parts) if parts else np.zeros((0, 2))
         r_c, bearing = closest_obstacle(points, self.platform.length, self.platform.width)
         return points, r_c, bearing
