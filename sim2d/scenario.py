@@ -22,14 +22,14 @@ from executive.core.frames import AircraftPlacement, Pose2
 from executive.core.geometry import to_shapely
 from executive.core.loader import load_mission
 from executive.core.model import Mission, Polygon
-from executive.core.problems import InvalidInputError, Problem, ProblemSink
-from executive.core.resources import schema_path
+from executive.core.problems import Problem, ProblemSink
 from executive.core.xmlreader import (
     ElementReader,
-    display_path,
+    library_root_of,
+    load_document,
     load_reference,
     local_name,
-    open_validated,
+    problems_of,
 )
 from executive.core.xmlsafe import XmlDocument
 from sim2d.cameras import camera_rigs
@@ -222,31 +222,17 @@ class Scenario:
 
 def default_library_root(scenario_path: Path) -> Path:
     """``<library>/<type>/scenarios/<name>.xml`` -> ``<library>``."""
-    try:
-        return scenario_path.resolve().parent.parent.parent
-    except (OSError, RuntimeError):  # a symbolic link loop: reported when the file is read
-        return scenario_path.absolute().parent.parent.parent
+    return library_root_of(scenario_path, 3)
 
 
 def load_scenario(path: Path | str, library_root: Path | str | None = None) -> Scenario:
     """Load and check a scenario and its mission; raise InvalidInputError on any problem."""
-    path = Path(path)
-    root_dir = Path(library_root) if library_root is not None else default_library_root(path)
-    sink = ProblemSink(display_path(path))
-    doc = open_validated(path, "scenario", SCENARIO_NS, schema_path("scenario"), sink)
-    scenario = _build(doc, sink, path, root_dir) if doc is not None else None
-    sink.raise_if_any()
-    assert scenario is not None
-    return scenario
+    return load_document(path, "scenario", SCENARIO_NS, _build, library_root, 3)
 
 
 def check_scenario(path: Path | str, library_root: Path | str | None = None) -> list[Problem]:
     """Every problem of a scenario file (empty when valid); never raises."""
-    try:
-        load_scenario(path, library_root)
-    except InvalidInputError as exc:
-        return list(exc.problems)
-    return []
+    return problems_of(lambda: load_scenario(path, library_root))
 
 
 # -- building ---------------------------------------------------------------------------------

@@ -17,13 +17,14 @@ import numpy as np
 from lxml import etree
 
 from executive.core.problems import InvalidInputError, Problem, ProblemSink, file_kind
-from executive.core.resources import schema_path
 from executive.core.xmlreader import (
     MAX_REFERENCE_CHARS,
     ElementReader,
     display_path,
+    library_root_of,
+    load_document,
     local_name,
-    open_validated,
+    problems_of,
 )
 from executive.core.xmlsafe import XmlDocument
 from sim2d.cameras import camera_rigs
@@ -174,31 +175,17 @@ class Campaign:
 
 def default_library_root(campaign_path: Path) -> Path:
     """``<library>/campaigns/<name>.xml`` -> ``<library>`` (e.g. ``missions/``)."""
-    try:
-        return campaign_path.resolve().parent.parent
-    except (OSError, RuntimeError):
-        return campaign_path.absolute().parent.parent
+    return library_root_of(campaign_path, 2)
 
 
 def load_campaign(path: Path | str, library_root: Path | str | None = None) -> Campaign:
     """Load and check a campaign and its scenarios; raise InvalidInputError on any problem."""
-    path = Path(path)
-    root_dir = Path(library_root) if library_root is not None else default_library_root(path)
-    sink = ProblemSink(display_path(path))
-    doc = open_validated(path, "campaign", CAMPAIGN_NS, schema_path("campaign"), sink)
-    campaign = _build(doc, sink, path, root_dir) if doc is not None else None
-    sink.raise_if_any()
-    assert campaign is not None
-    return campaign
+    return load_document(path, "campaign", CAMPAIGN_NS, _build, library_root, 2)
 
 
 def check_campaign(path: Path | str, library_root: Path | str | None = None) -> list[Problem]:
     """Every problem of a campaign file (empty when valid); never raises."""
-    try:
-        load_campaign(path, library_root)
-    except InvalidInputError as exc:
-        return list(exc.problems)
-    return []
+    return problems_of(lambda: load_campaign(path, library_root))
 
 
 # -- building ----------------------------------------------------------------------------------

@@ -46,12 +46,12 @@ from executive.core.model import (
     ZoneKind,
 )
 from executive.core.problems import InvalidInputError, Problem, ProblemSink
-from executive.core.resources import schema_path
 from executive.core.xmlreader import (
     ElementReader,
     display_path,
+    library_root_of,
+    load_document,
     load_reference,
-    open_validated,
 )
 from executive.core.xmlsafe import XmlDocument, parse_xml
 
@@ -64,10 +64,6 @@ KNOWN_ROOTS = {
     "aircraft": AIRCRAFT_NS,
     "mission": MISSION_NS,
 }
-
-
-def _open(path: Path, kind: str, sink: ProblemSink) -> XmlDocument | None:
-    return open_validated(path, kind, KNOWN_ROOTS[kind], schema_path(kind), sink)
 
 
 def root_name(path: Path) -> str | None:
@@ -89,16 +85,12 @@ def detect_kind(path: Path) -> str | None:
 # -- aircraft ------------------------------------------------------------------------------------
 def load_aircraft(path: Path | str) -> Aircraft:
     """Load and check an aircraft type file; raise :class:`InvalidInputError` on any problem."""
-    path = Path(path)
-    sink = ProblemSink(display_path(path))
-    doc = _open(path, "aircraft", sink)
-    aircraft = _build_aircraft(doc, sink) if doc is not None else None
-    sink.raise_if_any()
-    assert aircraft is not None
-    return aircraft
+    return load_document(path, "aircraft", AIRCRAFT_NS, _build_aircraft, None, 0)
 
 
-def _build_aircraft(doc: XmlDocument, sink: ProblemSink) -> Aircraft | None:
+def _build_aircraft(
+    doc: XmlDocument, sink: ProblemSink, path: Path, root_dir: Path
+) -> Aircraft | None:
     r = ElementReader(doc, sink)
     root = doc.root
     origin_height = r.num(root, "origin-height")
@@ -222,10 +214,7 @@ def _check_footprint_extent(
 # -- mission ---------------------------------------------------------------------------------------
 def default_library_root(mission_path: Path) -> Path:
     """The mission library a mission file belongs to: ``<root>/<type>/<mission>.xml``."""
-    try:
-        return mission_path.resolve().parent.parent
-    except (OSError, RuntimeError):  # a symbolic link loop: reported when the file is read
-        return mission_path.absolute().parent.parent
+    return library_root_of(mission_path, 2)
 
 
 def load_mission(path: Path | str, library_root: Path | str | None = None) -> Mission:
@@ -234,14 +223,7 @@ def load_mission(path: Path | str, library_root: Path | str | None = None) -> Mi
     The aircraft file is resolved relative to the mission file and must stay inside
     ``library_root`` (default: the mission file's grandparent directory).
     """
-    path = Path(path)
-    root_dir = Path(library_root) if library_root is not None else default_library_root(path)
-    sink = ProblemSink(display_path(path))
-    doc = _open(path, "mission", sink)
-    mission = _build_mission(doc, sink, path, root_dir) if doc is not None else None
-    sink.raise_if_any()
-    assert mission is not None
-    return mission
+    return load_document(path, "mission", MISSION_NS, _build_mission, library_root, 2)
 
 
 def _build_mission(

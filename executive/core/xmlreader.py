@@ -26,6 +26,7 @@ from executive.core.problems import (
     SourceLocation,
     file_kind,
 )
+from executive.core.resources import schema_path
 from executive.core.xmlsafe import XmlDocument, parse_xml, validate_against
 
 E = TypeVar("E")
@@ -223,6 +224,54 @@ def open_validated(
 
 
 M = TypeVar("M")
+
+Builder = Callable[[XmlDocument, ProblemSink, Path, Path], "M | None"]
+"""Builds the model of a validated document: (document, sink, its path, library root)."""
+
+
+def library_root_of(path: Path, depth: int) -> Path:
+    """The mission library a file ``depth`` folders below it belongs to (a mission,
+    ``<library>/<type>/<mission>.xml``, is at depth 2). A path that cannot be resolved (a
+    symbolic link loop) is taken as written: its problem is reported when it is read."""
+    try:
+        resolved = path.resolve()
+    except (OSError, RuntimeError):
+        resolved = path.absolute()
+    for _ in range(depth):
+        resolved = resolved.parent
+    return resolved
+
+
+def load_document(
+    path: Path | str,
+    kind: str,
+    namespace: str,
+    build: Builder[M],
+    library_root: Path | str | None,
+    depth: int,
+) -> M:
+    """Load a ``<kind>`` file of the mission library: parse, check its root, validate it
+    against ``kind``'s schema, build its model with ``build``; raise
+    :class:`InvalidInputError` with every problem (file:line:column) if there is any, so
+    a caller never gets a half-built model. ``library_root`` defaults to
+    :func:`library_root_of` (``path``, ``depth``)."""
+    path = Path(path)
+    root_dir = Path(library_root) if library_root is not None else library_root_of(path, depth)
+    sink = ProblemSink(display_path(path))
+    doc = open_validated(path, kind, namespace, schema_path(kind), sink)
+    model = build(doc, sink, path, root_dir) if doc is not None else None
+    sink.raise_if_any()
+    assert model is not None  # a builder that returns None has recorded why
+    return model
+
+
+def problems_of(load: Callable[[], object]) -> list[Problem]:
+    """Every problem ``load()`` raises (empty when it loads); never raises."""
+    try:
+        load()
+    except InvalidInputError as exc:
+        return list(exc.problems)
+    return []
 
 
 def load_reference(
