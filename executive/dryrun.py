@@ -883,7 +883,7 @@ def judge(run: DryRun) -> list[Cause]:
     if not result.stop_sent:
         causes.append(Cause(end, "the robot link was lost: the final stop was not confirmed"))
     for c in run.robot.truth.collisions:
-        causes.append(Cause(c.time, f"collision with {c.other} at {c.time:.1f} s"))
+        causes.append(Cause(c.time, c.describe()))
     for t, zone in run.breaches:
         causes.append(Cause(t, f"geofence breach: the robot entered zone '{zone}' at {t:.1f} s"))
     nav = run.scenario.mission.navigation

@@ -65,7 +65,13 @@ def metrics(run: DryRun) -> dict[str, object]:
         "items_inspected": len(result.progress.results),
         "items_detected": sum(r.detected for r in result.progress.results),
         "collisions": [
-            {"t": round(c.time, 2), "with": c.other, "at": [round(c.x, 2), round(c.y, 2)]}
+            {
+                "t": round(c.time, 2),
+                "with": c.other,
+                "at": [round(c.x, 2), round(c.y, 2)],
+                "robot_speed": round(c.robot_speed, 3),
+                "robot_moving": c.robot_moving,
+            }
             for c in truth.collisions
         ],
         "min_clearance": round(min(clearances), 3) if clearances else None,

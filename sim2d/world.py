@@ -29,16 +29,37 @@ from sim2d.scenario import Body, Chaser, LoiteringGroup, PathMover, Scenario, St
 
 ROBOT, AIRCRAFT, OBSTACLE = 1, 2, 3
 SEGMENT_RADIUS = 0.01  # static polygon edges are thin pymunk segments (any polygon works)
+STILL_SPEED = 0.05
+"""m/s: a robot slower than this at a collision was standing still (braking to rest from
+the e-stop's r_ES leaves a few mm/s of creep at most)."""
 
 
 @dataclass(frozen=True, slots=True)
 class Collision:
-    """The robot touched something: when, what, and where on the robot (robot frame)."""
+    """The robot touched something: when, what, where on the robot (robot frame), and how
+    fast the robot itself moved at the first contact (ground truth, m/s): a robot
+    standing still was struck (a mover that does not avoid ran into it), a moving robot
+    drove into it or did not get out of its way."""
 
     time: float
     other: str
     x: float
     y: float
+    robot_speed: float = 0.0
+
+    @property
+    def robot_moving(self) -> bool:
+        """The robot was moving at the first contact (at least :data:`STILL_SPEED`)."""
+        return self.robot_speed >= STILL_SPEED
+
+    def describe(self) -> str:
+        """'collision with <other> at <t> s (the robot standing still | moving at v m/s)'."""
+        how = (
+            f"moving at {self.robot_speed:.2f} m/s"
+            if self.robot_moving
+            else "standing still: struck"
+        )
+        return f"collision with {self.other} at {self.time:.1f} s (the robot {how})"
 
 
 @dataclass
@@ -221,7 +242,8 @@ class World:
         where = self._contact_in_robot(arbiter)
         other = self._other(arbiter)
         self._touching[other] = where
-        self.collisions.append(Collision(self.time, self._name_of(other), *where))
+        speed = float(self.robot_body.velocity.length)
+        self.collisions.append(Collision(self.time, self._name_of(other), *where, speed))
 
     def _pre_solve(self, arbiter: pymunk.Arbiter, space: pymunk.Space, data: object) -> None:
         del space, data

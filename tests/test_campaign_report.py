@@ -74,6 +74,16 @@ def _rows(n: int = 36, seed: int = 3) -> list[dict]:
                 "collisions": (
                     [{"t": 7.25, "with": "<img src=x onerror=alert(1)>", "kind": "person"}]
                     if k == 7
+                    else [
+                        {
+                            "t": 3.5,
+                            "with": "mover-1",
+                            "kind": "trolley",
+                            "robot_speed": 0.002,
+                            "robot_moving": False,
+                        }
+                    ]
+                    if k == 9
                     else []
                 ),
                 "near_misses": 2 if k in (2, 11) else 0,
@@ -158,6 +168,10 @@ def test_report_lists_causes_escapes_and_links_real_plots(tmp_path, ident):
     )
     collision = _row_of(page, "&lt;img src=x onerror=alert(1)&gt;")
     assert '<td class="num">7</td>' in collision and "--episode 7 " in collision
+    assert "<td>-</td>" in collision  # a row from before the robot's speed was kept
+    struck = _row_of(page, "mover-1")
+    assert "standing still" in struck and "--episode 9 " in struck
+    assert "the robot was moving in 1 of them: 7 " in page
     for episode in (2, 11):
         near = _row_of(page, f'<tr><td class="num">{episode}</td><td class="num">2</td>')
         assert "0.350 m" in near and f"--episode {episode} " in near

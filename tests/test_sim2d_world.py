@@ -13,6 +13,7 @@ from executive.core.records import PanTiltRate, VelocityCommand
 from executive.core.robot import RobotInterface
 from sim2d.robot import SimRobot
 from sim2d.scenario import Body
+from sim2d.world import STILL_SPEED
 from tests.sim2d_helpers import (
     NO_NOISE,
     NO_SLIP,
@@ -258,3 +259,28 @@ def test_faults_laser_dropout_camera_freeze_gps_loss_bumper_hit(tmp_path):
     after = robot.read()
     assert after.scans["front"].stamp > 3.0 and after.gps is not None
     assert not after.bumpers.rear
+
+
+def test_a_collision_says_whether_the_robot_moved_or_was_struck_standing_still(tmp_path):
+    """Driving into a crate is the robot's collision; a trolley that runs into the robot
+    standing still struck it: the campaign report tells one from the other."""
+    crate = start(-60, 10, 0) + (
+        '<obstacles><box id="crate" kind="equipment" x="-57.5" y="10" heading-deg="0"'
+        ' length="1" width="2" height="1"/></obstacles>'
+    )
+    robot = SimRobot(make_scenario(tmp_path / "crate", crate))
+    drive(robot, 0.5, 0.0, 6.0)
+    hit = robot.truth.collisions[0]
+    assert hit.robot_moving and 0.3 < hit.robot_speed < 0.6, hit
+    assert "moving at" in hit.describe()
+    trolley = start(-60, 10, 0) + (
+        '<obstacles><path id="cart" kind="trolley" length="1.2" width="0.8" height="1.0"'
+        ' speed="1.0" start-time="0.0" loop="false">'
+        '<waypoint x="-60" y="14"/><waypoint x="-60" y="6"/></path></obstacles>'
+    )
+    robot = SimRobot(make_scenario(tmp_path / "trolley", trolley))
+    drive(robot, 0.0, 0.0, 6.0)
+    struck = robot.truth.collisions[0]
+    assert struck.other == "cart"
+    assert not struck.robot_moving and struck.robot_speed < STILL_SPEED, struck
+    assert "standing still: struck" in struck.describe()

@@ -370,6 +370,14 @@ def _table(head: list[str], body: list[list[str]], numeric: Iterable[int] = ()) 
     return "\n".join(out)
 
 
+def _robot_motion(collision: Mapping[str, object]) -> str:
+    """How the robot moved at a collision: 'moving at v m/s' or 'standing still'."""
+    speed = collision.get("robot_speed")
+    if not isinstance(speed, int | float):
+        return "-"  # a row from before the speed was recorded
+    return f"moving at {speed:.2f} m/s" if collision.get("robot_moving") else "standing still"
+
+
 def _list(items: list[object]) -> str:
     return _e(", ".join(str(i) for i in items))
 
@@ -512,16 +520,21 @@ class _Page:
                     _e(_fmt(c.get("t"), 1.0, 2, " s")),
                     _e(c.get("with")),
                     _e(c.get("kind")),
+                    _e(_robot_motion(c)),
                     self.rerun_cell(c.get("episode")),
                 ]
                 for c in collisions
             ]
             episodes = sorted({_episode(c) for c in collisions})
+            moving = sorted({_episode(c) for c in collisions if c.get("robot_moving", True)})
             parts.append(
                 f'<p class="bad">{len(collisions)} collision(s) in {len(episodes)} episode(s): '
-                f"{_list(episodes)}.</p>"
+                f"{_list(episodes)}; the robot was moving in {len(moving)} of them"
+                f"{': ' + _list(moving) if moving else ''} (standing still, it was struck by "
+                "a mover that does not avoid it).</p>"
             )
-            parts.append(_table(["episode", "time", "with", "kind", "reproduce"], body, (0, 1)))
+            head = ["episode", "time", "with", "kind", "the robot", "reproduce"]
+            parts.append(_table(head, body, (0, 1)))
         else:
             parts.append("<p>No collision.</p>")
         near = _dicts(self.summary.get("near_misses"))

@@ -212,6 +212,9 @@ def summarise(identity: dict[str, object], rows: list[Row]) -> dict[str, object]
         "worst_checkpoints": checkpoints[:WORST_LISTED],
         "collisions": collisions,
         "episodes_with_collision": sorted({int(c["episode"]) for c in collisions}),  # type: ignore[call-overload]
+        "episodes_with_collision_robot_moving": sorted(
+            {int(c["episode"]) for c in collisions if c.get("robot_moving", True)}  # type: ignore[call-overload]
+        ),
         "near_misses": near,
         "crashed": [r["episode"] for r in rows if r.get("outcome") == "crashed"],
     }

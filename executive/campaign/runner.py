@@ -127,7 +127,13 @@ def episode_row(campaign: Campaign, index: int, max_time: float | None = None) -
     worst_h = max(reached, key=lambda c: c.heading_error_deg or 0.0, default=None)
     clearances = [s.clearance for s in run.samples if math.isfinite(s.clearance)]
     collisions = [
-        {"t": round(c.time, 2), "with": c.other, "kind": _kind_of(episode, c.other)}
+        {
+            "t": round(c.time, 2),
+            "with": c.other,
+            "kind": _kind_of(episode, c.other),
+            "robot_speed": round(c.robot_speed, 3),
+            "robot_moving": c.robot_moving,
+        }
         for c in run.robot.truth.collisions
     ]
     return row | {
