@@ -505,6 +505,32 @@ def _conj_dirs(angles: FloatArray) -> ComplexArray:
     return out
 
 
+def _beam_ranges(
+    start: FloatArray,
+    width: FloatArray,
+    angle_increment: float,
+    neg_lo: FloatArray,
+    hi: FloatArray,
+    caps: FloatArray,
+) -> tuple[IntArray, IntArray]:
+    """Beam-index range of every (shift, shape) from its angular ``start`` and ``width``
+    (radians; both scaled in place): ``[ceil(low end), floor(high end)]`` as ``-first``
+    (ceil(x) = -floor(-x)) and the beam count (0 when empty)."""
+    inv = 1.0 / angle_increment
+    start *= inv
+    width *= inv
+    width += start
+    bounds = np.empty((2, len(neg_lo), len(start)))
+    np.subtract(neg_lo, start, out=bounds[0])
+    np.add(hi, width, out=bounds[1])
+    np.floor(bounds, out=bounds)
+    np.minimum(bounds, caps, out=bounds)
+    index = bounds.astype(np.int64)
+    count = index[1] + index[0]
+    np.maximum(count, 0, out=count)
+    return index[0], count
+
+
 @lru_cache(maxsize=64)
 def _beam_table(
     angle_increment: float, n_beams: int
@@ -564,21 +590,8 @@ def cast_scan(
         complex(math.cos(ref), -math.sin(ref)),
         float(range_max),
     )
-    # Beam-index range of every (shift, shape): [ceil(low end), floor(high end)], as
-    # bounds[0] = -first (ceil(x) = -floor(-x)) and bounds[1] = stop = last + 1.
-    inv = 1.0 / angle_increment
-    start *= inv
-    width *= inv
-    width += start
-    bounds = np.empty((2, len(neg_lo), len(start)))
-    np.subtract(neg_lo, start, out=bounds[0])
-    np.add(hi, width, out=bounds[1])
-    np.floor(bounds, out=bounds)
-    np.minimum(bounds, caps, out=bounds)
-    index = bounds.astype(np.int64)
-    count = index[1] + index[0]
-    np.maximum(count, 0, out=count)
-    beams, t, _ = _distances(index[0], count, conj_dirs, coef, rsq, scene._n_seg)
+    neg_first, count = _beam_ranges(start, width, angle_increment, neg_lo, hi, caps)
+    beams, t, _ = _distances(neg_first, count, conj_dirs, coef, rsq, scene._n_seg)
     np.minimum.at(target, beams, t)
     return out
 
@@ -662,19 +675,7 @@ def cast_scans(
     rot = np.array([complex(math.cos(ref), -math.sin(ref)) for ref in refs] * 2).repeat(reps)
     start, width, coef, rsq = _shapes(_stacked(scene, copies), at, rot, float(range_max))
     # as in cast_scan, with the beams of copy l at l * n_beams... in the flat output
-    inv = 1.0 / angle_increment
-    start *= inv
-    width *= inv
-    width += start
-    bounds = np.empty((2, len(neg_lo), len(start)))
-    np.subtract(neg_lo, start, out=bounds[0])
-    np.add(hi, width, out=bounds[1])
-    np.floor(bounds, out=bounds)
-    np.minimum(bounds, caps, out=bounds)
-    index = bounds.astype(np.int64)
-    count = index[1] + index[0]
-    np.maximum(count, 0, out=count)
-    neg_first = index[0]
+    neg_first, count = _beam_ranges(start, width, angle_increment, neg_lo, hi, caps)
     neg_first -= lane_start
     beams, t, _ = _distances(neg_first, count, conj_dirs, coef, rsq, copies * n)
     np.minimum.at(out.reshape(-1), beams, t)
