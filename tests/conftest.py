@@ -4,8 +4,15 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+import cv2
 import py_trees
 import pytest
+
+# One thread per test worker, as OPENBLAS_NUM_THREADS=1 does for numpy: pytest-xdist
+# already runs a worker per core, and OpenCV's own pool (ORB, warps in the ceiling tests)
+# would crowd the HIL rig's real-time processes out of the other core (a lost 0.1 s base
+# heartbeat is a link loss by design).
+cv2.setNumThreads(1)
 
 REPO = Path(__file__).resolve().parent.parent
 MISSIONS = REPO / "missions"
