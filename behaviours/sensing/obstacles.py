@@ -122,13 +122,13 @@ class SenseObstacles(Node):
         frame: SensorFrame = self.read(SENSOR_FRAME)
         self._integrate_odometry(frame)
         scans = [(lid, s) for lid, s in frame.scans.items() if lid in self.mounts]
-        fresh = [(s, self.mounts[lid]) for lid, s in scans if self._seen.get(lid) != s.stamp]
+        fresh = [(lid, s) for lid, s in scans if self._seen.get(lid) != s.stamp]
         if fresh:
             robot_points = {lid: self._robot_points(lid, s) for lid, s in scans}
             self._raw = self._closest(list(robot_points.values()))
             clusters = self.clusterer.detect(
-                fresh,
-                [robot_points[lid] for lid, s in scans if self._seen.get(lid) != s.stamp],
+                [(s, self.mounts[lid]) for lid, s in fresh],
+                [robot_points[lid] for lid, _ in fresh],
             )
             pose = self._odometry_at(clusters.stamp)
             self._tracks = self.tracker.update(clusters, pose, self._velocity)
