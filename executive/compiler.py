@@ -175,31 +175,29 @@ any other type, checkpoints keep metric go-to-goal with a ``servo-metric`` warni
 says so (``--servo`` forces servoing on)."""
 
 
-class Sequence(py_trees.composites.Sequence):
-    """py_trees' sequence; its stop skips the debug string nobody reads
+class _LeanStop:
+    """A composite's stop without py_trees' debug string nobody reads
     (:func:`behaviours.base.unobserved`): the tree stops composites thousands of times a
-    second."""
+    second. Sequences and selectors stop as :class:`~py_trees.composites.Composite` does."""
 
     def stop(self, new_status: Status = Status.INVALID) -> None:
         if unobserved():
-            py_trees.composites.Composite.stop(self, new_status)
+            py_trees.composites.Composite.stop(self, new_status)  # type: ignore[arg-type]
         else:
-            super().stop(new_status)
+            super().stop(new_status)  # type: ignore[misc]
 
 
-class Selector(py_trees.composites.Selector):
-    """py_trees' selector, with :class:`Sequence`'s lean stop."""
+class Sequence(_LeanStop, py_trees.composites.Sequence):
+    """py_trees' sequence, with a lean stop (:class:`_LeanStop`)."""
 
-    def stop(self, new_status: Status = Status.INVALID) -> None:
-        if unobserved():
-            py_trees.composites.Composite.stop(self, new_status)
-        else:
-            super().stop(new_status)
+
+class Selector(_LeanStop, py_trees.composites.Selector):
+    """py_trees' selector, with a lean stop (:class:`_LeanStop`)."""
 
 
 class Parallel(py_trees.composites.Parallel):
-    """py_trees' parallel, with :class:`Sequence`'s lean stop (running children are
-    stopped first, as py_trees' own does)."""
+    """py_trees' parallel, with a lean stop too (running children are stopped first, as
+    py_trees' own does)."""
 
     def stop(self, new_status: Status = Status.INVALID) -> None:
         if not unobserved():
