@@ -87,6 +87,7 @@ from shapely.geometry import Polygon as ShapelyPolygon
 from shapely.ops import unary_union
 
 from behaviours.controllers.avoidance import AvoidanceTrigger
+from executive.campaign.results import wilson
 from executive.compiler import CompileOptions, GuardedBranch, compile_mission
 from executive.dryrun import DryRun, dry_run
 from executive.report import metrics
@@ -448,14 +449,10 @@ def _mean(values: list[float]) -> float | None:
     return round(float(np.mean(values)), 3) if values else None
 
 
-def _wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float] | None:
-    """95 % Wilson score interval of a success rate."""
-    if n == 0:
-        return None
-    p = k / n
-    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
-    return round(100 * (centre - half), 1), round(100 * (centre + half), 1)
+def _wilson(k: int, n: int) -> tuple[float, float] | None:
+    """95 % Wilson score interval of a success rate, in percent (the campaign report's)."""
+    interval = wilson(k, n)
+    return None if interval is None else (round(100 * interval[0], 1), round(100 * interval[1], 1))
 
 
 def summarise(rows: list[dict], reference: dict | None, wall: float) -> dict[str, object]:
