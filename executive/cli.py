@@ -55,6 +55,10 @@ def check_any(path: Path, library: Path | None = None) -> list[Problem]:
             return check_campaign(path, library)
         if kind == "robot":
             return check_robot(path)
+        if kind == "route":
+            from executive.core.taught_route import check_route
+
+            return check_route(path, library)
         return check_file(path, library)
     except Exception as exc:  # reported as a problem of this file
         return [internal_error(path, exc)]
@@ -71,6 +75,14 @@ def _describe(path: Path) -> str:
         return (
             f"campaign '{campaign.id}': {len(campaign.scenarios)} base scenario(s), "
             f"{campaign.episodes} episodes, seed {campaign.seed}"
+        )
+    if kind == "route":
+        from executive.core.taught_route import load_route
+
+        route = load_route(path)
+        return (
+            f"taught route '{route.id}': {len(route.keys)} key images, "
+            f"{route.length:.1f} m at {route.speed:g} m/s"
         )
     if kind == "scenario":
         scenario = load_scenario(path)
@@ -689,6 +701,10 @@ def build_parser() -> argparse.ArgumentParser:
     from executive.campaign.cli import add_campaign_command
 
     add_campaign_command(sub)
+
+    from executive.teach import add_teach_command
+
+    add_teach_command(sub)
     return parser
 
 

@@ -12,7 +12,8 @@ The tree::
         |                                    operator control (hold still, default)
         `-- Sequence "mission" (memory)
             |-- start mission
-            |-- Sequence "approach"      navigate(waypoint)... navigate(P)
+            |-- Sequence "approach"      navigate(waypoint)... [or repeat(taught route)]
+            |                            navigate(P)
             |-- Sequence "inspection"    per checkpoint: navigate(cp) -> correct camera
             |                            angle -> inspect items -> dwell -> done
             `-- Sequence "return"        navigate(waypoint)... navigate(P) -> navigate(station)
@@ -21,6 +22,10 @@ The tree::
                                   [e-stop?] -> emergency stop
                                   [reached?] -> stop
                                   go to goal (default)]
+    repeat(route) = Sequence [route progressing?, GuardSelector:
+                                  [e-stop?] -> emergency stop
+                                  avoidance (towards the current key image)
+                                  follow taught route (default; seed 002 §3)]
 
 The operator's take-over pauses the mission; the hand-back resumes it where it was
 (ARCHITECTURE §5). While they have the robot it is in the thesis's collaborative mode
@@ -85,6 +90,12 @@ from behaviours.controllers.motion import (
     HoldStill,
     Rejoined,
 )
+from behaviours.controllers.repeat import (
+    FollowTaughtRoute,
+    RouteGoal,
+    RouteProgressing,
+    RouteSession,
+)
 from behaviours.controllers.servo import (
     IBVS,
     PBVS,
@@ -110,13 +121,16 @@ from behaviours.guards.operator_help import AskWhenTrapped, SkipCheckpoint, Skip
 from behaviours.keys import COMMAND, EXTERNAL_KEYS, MissionProgress
 from behaviours.laws.augmented_image import MIN_REAL_POINTS
 from behaviours.laws.go_to_goal import GoToGoalParams
+from behaviours.laws.mosaic import localiser_from
+from behaviours.sensing.ceiling import CeilingFixer, camera_mismatch
 from behaviours.sensing.features import SenseFeatures
 from behaviours.sensing.localisation import Localise
 from behaviours.sensing.obstacles import SenseObstacles
 from behaviours.sensing.registration import AircraftRegistrar
 from executive.core.frames import AircraftPlacement, Pose2
 from executive.core.geometry import to_shapely
-from executive.core.model import CameraKind, Checkpoint, Frame, Mission, Waypoint
+from executive.core.model import CameraKind, Checkpoint, Frame, Mission, TaughtRoute, Waypoint
+from executive.core.mosaicfile import MosaicFormatError, read_mosaic
 from executive.core.problems import InvalidInputError, Problem, SourceLocation
 from executive.core.records import VelocityCommand, camera_ids
 
@@ -346,6 +360,8 @@ class CompiledMission:
     goto_nodes: list[GoToGoalController] = field(default_factory=list)
     avoidance_policies: list[AvoidancePolicy] = field(default_factory=list)
     servo_sessions: list[ServoSession] = field(default_factory=list)
+    route_sessions: list[RouteSession] = field(default_factory=list)
+    """The taught routes' repetitions (issue 17): their key-passed events and records."""
 
 
 def _warn(where: SourceLocation, code: str, message: str) -> Problem:
@@ -363,6 +379,7 @@ class _Builder:
         self.goto_nodes: list[GoToGoalController] = []
         self.avoidance_policies: list[AvoidancePolicy] = []
         self.servo_sessions: list[ServoSession] = []
+        self.route_sessions: list[RouteSession] = []
         self.skips = SkipRequests()
         self.take_over = OperatorTakeOver()
         """The collaborative mode's guard; its hand-backs drive fig. 2.21's rejoin."""
@@ -538,6 +555,27 @@ class _Builder:
             return None
         return AircraftRegistrar(self.mission.aircraft, dict(self.mission.platform.lasers))
 
+    def ceiling_fixer(self) -> CeilingFixer | None:
+        """Ceiling fixes for the pose filter (issue 17): only with both the platform's
+        ceiling camera and the mission's mosaic, learnt with a camera like it."""
+        m = self.mission
+        spec = m.platform.ceiling_camera
+        if spec is None or m.ceiling_mosaic is None:
+            return None
+        try:
+            data = read_mosaic(m.ceiling_mosaic)
+            localiser = localiser_from(data, m.ceiling_mosaic)
+        except MosaicFormatError as exc:
+            self.errors.append(Problem(SourceLocation(m.source), "ceiling-mosaic", str(exc)))
+            return None
+        mismatch = camera_mismatch(spec, localiser, data.ceiling_height)
+        if mismatch is not None:
+            self.errors.append(
+                Problem(spec.where, "ceiling-camera", f"ceiling-camera and mosaic: {mismatch}")
+            )
+            return None
+        return CeilingFixer(localiser)
+
     # -- phases -------------------------------------------------------------------------------
     def approach(self) -> py_trees.behaviour.Behaviour:
         m = self.mission
@@ -547,8 +585,34 @@ class _Builder:
             children.append(
                 self.navigate(wp.id, self.waypoint_goal(wp), wp.heading is not None, loose)
             )
+        if m.taught_route is not None:
+            children.append(self.repeat_route(m.taught_route))
         children.append(self.navigate("P", self.waypoint_goal(m.handover), False, (0.2, None)))
         return ResumableSequence("approach", children)
+
+    def repeat_route(self, route: TaughtRoute) -> py_trees.behaviour.Behaviour:
+        """A taught route repeated (issue 17, seed 002 §3) with the guards of any
+        navigation: [route progressing?, GuardSelector: [e-stop?] -> emergency stop,
+        avoidance towards the current key image, follow taught route (default)]."""
+        session = RouteSession(route, self.mission.platform)
+        self.route_sessions.append(session)
+        label = f"route {route.id}"
+        safety = self.mission.safety
+        goal = RouteGoal(route.end, Frame.AIRPORT, None, session)
+        guards = GuardSelector(
+            f"guards {label}",
+            [
+                GuardedBranch(
+                    f"e-stop {label}",
+                    EmergencyStop(safety.r_es, safety.estop_hold, name="e-stop?"),
+                    EStopHold(),
+                ),
+                *self.avoidance(label, goal),
+                FollowTaughtRoute(session, self.speed_limit, name=f"follow {label}"),
+            ],
+        )
+        trap = RouteProgressing(session, self.options.trapped_after, name=f"{label} progressing?")
+        return Sequence(f"navigate {label}", memory=False, children=[trap, guards])
 
     def checkpoint(self, cp: Checkpoint) -> py_trees.behaviour.Behaviour:
         m = self.mission
@@ -774,7 +838,13 @@ class _Builder:
             "sensing",
             memory=False,
             children=[
-                Localise(start, m.platform.track, self.placement, self.registrar()),
+                Localise(
+                    start,
+                    m.platform.track,
+                    self.placement,
+                    self.registrar(),
+                    ceiling=self.ceiling_fixer(),
+                ),
                 SenseObstacles(m.platform, m.airport.zones, m.safety.r_oa_trigger),
                 SenseFeatures(m.platform),
             ],
@@ -813,6 +883,7 @@ def compile_mission(mission: Mission, options: CompileOptions | None = None) -> 
         builder.goto_nodes,
         builder.avoidance_policies,
         builder.servo_sessions,
+        builder.route_sessions,
     )
 
 

@@ -307,6 +307,9 @@ class Runtime:
             self.controller = name
         for ev in self.safety.drain_events():
             self.events.append(Event(ev.stamp, "safety", {"kind": ev.kind, "reason": ev.reason}))
+        for session in self.compiled.route_sessions:  # taught routes: keys passed
+            for rev in session.drain_events():
+                self.events.append(Event(rev.stamp, rev.kind, rev.detail()))
         pose = self._get(POSE.name)
         if isinstance(pose, PoseEstimate):
             self._record_localisation(now, pose)

@@ -78,6 +78,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from executive.core.frames import FloatArray, Pose2
+from executive.core.model import CeilingCameraSpec
 
 ImageU8 = NDArray[np.uint8]
 ImageF32 = NDArray[np.float32]
@@ -95,6 +96,7 @@ __all__ = [
     "TextureLevel",
     "UpwardCamera",
     "render",
+    "upward_camera_for",
     "walker",
 ]
 
@@ -705,6 +707,24 @@ class UpwardCamera:
         if not z > 0.0:
             raise ValueError(f"upward camera: the ceiling ({ceiling_height} m) is not above it")
         return z
+
+
+def upward_camera_for(spec: CeilingCameraSpec) -> UpwardCamera:
+    """The simulated camera of a mission platform's ``<ceiling-camera>``: the same
+    intrinsics (:attr:`CeilingCameraSpec.fx` ...), mount and rate."""
+    return UpwardCamera(
+        image_width_px=spec.width_px,
+        image_height_px=spec.height_px,
+        fx=spec.fx,
+        fy=spec.fy,
+        cx=spec.cx,
+        cy=spec.cy,
+        mount_x=spec.mount_x,
+        mount_y=spec.mount_y,
+        mount_z=spec.mount_z,
+        mount_yaw=spec.mount_yaw,
+        rate=spec.rate_hz,
+    )
 
 
 # -- rendering ---------------------------------------------------------------------------------

@@ -32,6 +32,7 @@ from executive.core.frames import Pose2
 from executive.core.records import (
     Bumpers,
     CameraFrame,
+    CeilingImage,
     GpsFix,
     ImuReading,
     LaserScan,
@@ -41,7 +42,17 @@ from executive.core.records import (
     WheelSpeeds,
 )
 from sim2d.cameras import CameraRig, FeatureCloud, PanTiltUnit, camera_rigs, detect
-from sim2d.scenario import Fault, FaultKind, Scenario
+from sim2d.ceiling import CeilingTexture, UpwardCamera, render, upward_camera_for, walker
+from sim2d.scenario import (
+    Chaser,
+    Fault,
+    FaultKind,
+    ObstacleKind,
+    PathMover,
+    Scenario,
+    ScenarioCeiling,
+    lamps_off_at,
+)
 from sim2d.sensors import (
     Gps,
     Imu,
@@ -129,6 +140,10 @@ class SimRobot:
         self.imu_schedule = _Schedule(IMU_RATE_HZ, "imu")
         self.gps_schedule = _Schedule(scenario.gps.rate_hz, "gps")
         self.truth_schedule = _Schedule(TRUTH_RATE_HZ, "truth")
+        # the ceiling camera's images cost only when the platform has one and the scenario
+        # a ceiling; its noise has a generator of its own (the others draw as before)
+        self.ceiling = _CeilingView.of(self.world, rngs[6])
+        self._ceiling: CeilingImage | None = None
 
         self._scans: dict[str, LaserScan] = {}
         self._cameras: dict[str, CameraFrame] = {}
@@ -161,6 +176,7 @@ class SimRobot:
             imu=self._imu,
             gps=self._gps,
             bumpers=Bumpers(t, front or "front" in hit, rear or "rear" in hit),
+            ceiling=self._ceiling,
         )
 
     def send(self, command: VelocityCommand) -> None:
@@ -227,6 +243,10 @@ class SimRobot:
             if self._sensor_out is not None:
                 logged = None if fix is None else [_fmt(fix.x), _fmt(fix.y), _fmt(fix.sigma)]
                 self._log_sensor(t, "gps", logged)
+        if self.ceiling is not None and self.ceiling.schedule.due(t):
+            self._ceiling = CeilingImage(t, self.ceiling.render(pose, t))
+            if self._sensor_out is not None:
+                self._log_sensor(t, "ceiling", _digest(self._ceiling.image))
         if self.truth_schedule.due(t):
             self._log_truth(t)
 
@@ -339,6 +359,62 @@ class SimRobot:
         for handle in self._opened:
             handle.close()
         self._opened.clear()
+
+
+class _CeilingView:
+    """The platform's upward camera under the scenario's ceiling (issue 17): renders
+    :func:`sim2d.ceiling.render` from the robot's true pose at the camera's rate, with the
+    lamps of the scenario's timeline off and every person among the movers (paths and
+    chasers of kind person, every member of a group) as a walker of their height."""
+
+    def __init__(
+        self, world: World, ceiling: ScenarioCeiling, camera: UpwardCamera, rng: np.random.Generator
+    ) -> None:
+        self.world = world
+        self.settings = ceiling
+        self.camera = camera
+        self.texture = CeilingTexture(ceiling.spec)
+        self.rng = rng
+        self.schedule = _Schedule(camera.rate, "ceiling")
+        self.timeline = ceiling.timeline(world.scenario.seed)
+        person_ids = {
+            ob.id
+            for ob in world.scenario.obstacles
+            if isinstance(ob, PathMover | Chaser) and ob.kind is ObstacleKind.PERSON
+        }
+        person_ids |= {w.agent.id for group in world.groups for w in group.walkers}
+        self.persons = [m for m in world.moving if m.agent.id in person_ids]
+
+    @classmethod
+    def of(cls, world: World, rng: np.random.Generator) -> _CeilingView | None:
+        spec = world.platform.ceiling_camera
+        ceiling = world.scenario.ceiling
+        if spec is None or ceiling is None:
+            return None
+        return cls(world, ceiling, upward_camera_for(spec), rng)
+
+    def render(self, pose: Pose2, t: float) -> NDArray[np.uint8]:
+        ceiling = self.settings
+        occluders = [
+            occluder
+            for m in self.persons
+            for occluder in walker(m.body.position.x, m.body.position.y, stature=m.height)
+            if occluder.height > self.camera.mount_z + 0.01  # a child below the lens: unseen
+        ]
+        image = render(
+            self.texture,
+            self.camera,
+            pose,
+            lamps_off=lamps_off_at(self.timeline, t),
+            exposure=ceiling.exposure,
+            vignetting=ceiling.vignetting,
+            blur_px=ceiling.blur_px,
+            noise_sigma=ceiling.noise_grey,
+            occluders=occluders,
+            rng=self.rng,
+        )
+        image.flags.writeable = False
+        return image
 
 
 def _digest(values: np.ndarray) -> str:

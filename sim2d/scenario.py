@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from enum import StrEnum
 from pathlib import Path
 
+import numpy as np
 from lxml import etree
 from shapely.geometry import Point
 from shapely.geometry.base import BaseGeometry
@@ -33,6 +34,7 @@ from executive.core.xmlreader import (
 )
 from executive.core.xmlsafe import XmlDocument
 from sim2d.cameras import camera_rigs
+from sim2d.ceiling import CeilingSpec
 
 SCENARIO_NS = "urn:walkaround:scenario:1"
 
@@ -192,6 +194,82 @@ class Fault:
 
 
 @dataclass(frozen=True, slots=True)
+class LampSwitch:
+    """Lamps switched ``off`` (or on) at ``at`` (s): those of ``ids``, or a ``fraction``
+    of the candidates (the lamps on, to switch off; those off, to switch on)."""
+
+    at: float
+    off: bool
+    ids: tuple[int, ...] | None = None
+    fraction: float | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class ScenarioCeiling:
+    """A hangar ceiling over the scene (issue 17): the pattern ``spec``
+    (:class:`sim2d.ceiling.CeilingSpec`), the lamp ``switches`` and the imaging of the
+    upward camera's images (:func:`sim2d.ceiling.render`). Which lamps a ``fraction``
+    switches depends on the scenario's seed: :meth:`timeline`."""
+
+    spec: CeilingSpec
+    switches: tuple[LampSwitch, ...] = ()
+    exposure: float = 1.0
+    noise_grey: float = 2.0
+    blur_px: float = 0.0
+    vignetting: float = 0.0
+
+    def timeline(self, seed: int) -> tuple[tuple[float, frozenset[int]], ...]:
+        """:func:`lamp_timeline` of the switches for a scenario seeded with ``seed``."""
+        return lamp_timeline(self.switches, len(self.spec.lamp_centres()), seed)
+
+    def lamps_off(self, t: float, seed: int) -> frozenset[int]:
+        """The lamps off at time ``t`` (s) for a scenario seeded with ``seed``."""
+        return lamps_off_at(self.timeline(seed), t)
+
+
+def lamps_off_at(timeline: Iterable[tuple[float, frozenset[int]]], t: float) -> frozenset[int]:
+    """The lamps off at time ``t`` (s) on a :func:`lamp_timeline`."""
+    off: frozenset[int] = frozenset()
+    for at, lamps in timeline:
+        if at > t:
+            break
+        off = lamps
+    return off
+
+
+LAMP_SEED_KEY = 0x17CE
+"""Mixed with the scenario's seed and a switch's index for its random fraction of lamps."""
+
+
+def lamp_timeline(
+    switches: Iterable[LampSwitch], lamp_count: int, seed: int
+) -> tuple[tuple[float, frozenset[int]], ...]:
+    """The lamps off from each switch's time on, switches applied in time order (ties in
+    the given order). A fraction switches ``round(fraction * candidates)`` lamps drawn
+    without replacement by a generator seeded with (``seed``, :data:`LAMP_SEED_KEY`, the
+    switch's index in ``switches``), so a scenario file always gives the same lamps.
+    Ids at or above ``lamp_count`` raise ValueError."""
+    ordered = sorted(enumerate(switches), key=lambda item: item[1].at)
+    off: set[int] = set()
+    timeline: list[tuple[float, frozenset[int]]] = []
+    for index, switch in ordered:
+        if switch.ids is not None:
+            bad = [i for i in switch.ids if not 0 <= i < lamp_count]
+            if bad:
+                raise ValueError(f"lamp id {bad[0]} does not exist (lamps 0 to {lamp_count - 1})")
+            chosen = set(switch.ids)
+        else:
+            fraction = switch.fraction or 0.0
+            candidates = sorted(set(range(lamp_count)) - off if switch.off else off)
+            rng = np.random.default_rng([seed, LAMP_SEED_KEY, index])
+            count = round(fraction * len(candidates))
+            chosen = {int(i) for i in rng.choice(candidates, size=count, replace=False)}
+        off = off | chosen if switch.off else off - chosen
+        timeline.append((switch.at, frozenset(off)))
+    return tuple(timeline)
+
+
+@dataclass(frozen=True, slots=True)
 class Scenario:
     id: str
     mission: Mission
@@ -207,6 +285,7 @@ class Scenario:
     faults: tuple[Fault, ...] = ()
     description: str = ""
     source: str = ""
+    ceiling: ScenarioCeiling | None = None
 
     def true_placement(self) -> AircraftPlacement:
         """Where the aircraft really stands: the mission's nominal pose plus the offset."""
@@ -344,6 +423,8 @@ def _build(doc: XmlDocument, sink: ProblemSink, path: Path, root_dir: Path) -> S
         **_attrs(r, gps_el, ("rate-hz", "shadow-margin")),
     )
 
+    ceiling_el = r.child(root, "ceiling")
+    ceiling = _ceiling(r, ceiling_el) if ceiling_el is not None else None
     obstacle_el = r.elements(r.child(root, "obstacles"))
     fault_el = r.elements(r.child(root, "faults"))
     r.unique(obstacle_el, "obstacle")
@@ -368,10 +449,106 @@ def _build(doc: XmlDocument, sink: ProblemSink, path: Path, root_dir: Path) -> S
         faults=faults,
         description=r.text(r.child(root, "description")),
         source=sink.file,
+        ceiling=ceiling,
     )
     _check_references(r, scenario, fault_el)
+    _check_ceiling_camera(r, scenario, ceiling_el)
     _check_overlaps(r, scenario, obstacle_el)
     return None if sink else scenario
+
+
+_CEILING_ATTRS = {
+    # attribute -> CeilingSpec field (pairs of attributes make the tuple fields)
+    "x-min": "x_min",
+    "y-min": "y_min",
+    "x-max": "x_max",
+    "y-max": "y_max",
+    "height": "height",
+    "texel": "texel",
+    "lamp-radius": "lamp_radius",
+    "beam-spacing": "beam_spacing",
+    "beam-offset": "beam_offset",
+    "beam-width": "beam_width",
+    "purlin-spacing": "purlin_spacing",
+    "purlin-width": "purlin_width",
+    "mark-density": "mark_density",
+    "tile-size": "tile_size",
+}
+_CEILING_PAIRS = {
+    "lamp_spacing": ("lamp-spacing-x", "lamp-spacing-y"),
+    "lamp_offset": ("lamp-offset-x", "lamp-offset-y"),
+    "panel_size": ("panel-x", "panel-y"),
+}
+
+
+def _ceiling(r: ElementReader, el: etree._Element) -> ScenarioCeiling | None:
+    """The ``<ceiling>`` element; None (with the problems recorded) when it is not one."""
+    defaults = CeilingSpec()
+    values: dict[str, object] = {
+        field: r.num(el, attr) for attr, field in _CEILING_ATTRS.items() if el.get(attr)
+    }
+    for field, (ax, ay) in _CEILING_PAIRS.items():
+        dx, dy = getattr(defaults, field)
+        values[field] = (r.num(el, ax, dx), r.num(el, ay, dy))
+    if el.get("seed") is not None:
+        values["seed"] = r.integer(el, "seed")
+    if el.get("repeated-tiles") is not None:
+        values["repeated_tiles"] = r.integer(el, "repeated-tiles")
+    try:
+        spec = CeilingSpec(**values)  # type: ignore[arg-type]
+    except ValueError as exc:
+        r.problem(el, "ceiling", str(exc))
+        return None
+    lamp_count = len(spec.lamp_centres())
+    switches: list[LampSwitch] = []
+    usable = True
+    for se in r.elements(el):
+        ids_text, fraction = se.get("ids"), r.opt_num(se, "fraction")
+        if (ids_text is None) == (fraction is None):
+            r.problem(se, "lamp-switch", "give either 'ids' or 'fraction' (exactly one)")
+            usable = False
+            continue
+        ids = None if ids_text is None else tuple(int(i) for i in ids_text.split())
+        bad = [i for i in ids or () if i >= lamp_count]
+        if bad:
+            r.problem(
+                se,
+                "unknown-reference",
+                f"lamp {bad[0]} does not exist: this ceiling has {lamp_count} lamps "
+                f"(ids 0 to {lamp_count - 1})",
+                "ids",
+            )
+            usable = False
+            continue
+        switches.append(LampSwitch(r.num(se, "at"), local_name(se) == "lamps-off", ids, fraction))
+    if not usable:
+        return None
+    return ScenarioCeiling(
+        spec=spec,
+        switches=tuple(switches),
+        exposure=r.num(el, "exposure", 1.0),
+        noise_grey=r.num(el, "noise-grey", 2.0),
+        blur_px=r.num(el, "blur-px", 0.0),
+        vignetting=r.num(el, "vignetting", 0.0),
+    )
+
+
+def _check_ceiling_camera(
+    r: ElementReader, scenario: Scenario, ceiling_el: etree._Element | None
+) -> None:
+    """The ceiling must be above the platform's ceiling camera."""
+    camera = scenario.mission.platform.ceiling_camera
+    ceiling = scenario.ceiling
+    if ceiling_el is None or ceiling is None or camera is None:
+        return
+    if not ceiling.spec.height > camera.mount_z + 0.5:
+        r.problem(
+            ceiling_el,
+            "ceiling-height",
+            f"the ceiling ({ceiling.spec.height:g} m) must be more than 0.5 m above the "
+            f"platform's ceiling-camera ({camera.mount_z:g} m)",
+            "height",
+        )
 
 
 def _check_references(r: ElementReader, scenario: Scenario, fault_el: list) -> None:
@@ -601,6 +778,35 @@ def _fault_xml(fault: Fault) -> str:
     return f"<{fault.kind} {_xml_attrs(**attrs)}/>"
 
 
+def _ceiling_xml(ceiling: ScenarioCeiling) -> list[str]:
+    from xml.sax.saxutils import quoteattr
+
+    spec = ceiling.spec
+    attrs: dict[str, object] = {a: getattr(spec, f) for a, f in _CEILING_ATTRS.items()}
+    for field, names in _CEILING_PAIRS.items():
+        attrs |= dict(zip(names, getattr(spec, field), strict=True))
+    attrs |= {
+        "seed": str(spec.seed),
+        "repeated-tiles": str(spec.repeated_tiles),
+        "exposure": ceiling.exposure,
+        "noise-grey": ceiling.noise_grey,
+        "blur-px": ceiling.blur_px,
+        "vignetting": ceiling.vignetting,
+    }
+    text = " ".join(
+        f"{name}={quoteattr(value if isinstance(value, str) else _num(value))}"  # type: ignore[arg-type]
+        for name, value in attrs.items()
+    )
+    lines = [f"  <ceiling {text}>"]
+    for switch in ceiling.switches:
+        which = "lamps-off" if switch.off else "lamps-on"
+        ids = None if switch.ids is None else " ".join(str(i) for i in switch.ids)
+        lines.append(
+            f"    <{which} {_xml_attrs(at=switch.at, ids=ids, fraction=switch.fraction)}/>"
+        )
+    return [*lines, "  </ceiling>"]
+
+
 def scenario_xml(scenario: Scenario, mission_ref: str) -> str:
     """The scenario as a scenario file whose ``mission`` attribute is ``mission_ref`` (a
     path relative to where the file will be written): every element :func:`load_scenario`
@@ -652,6 +858,7 @@ def scenario_xml(scenario: Scenario, mission_ref: str) -> str:
         "  <faults>",
         *(f"    {_fault_xml(f)}" for f in scenario.faults),
         "  </faults>",
+        *(_ceiling_xml(scenario.ceiling) if scenario.ceiling is not None else ()),
         "</scenario>",
     ]
     return "\n".join(lines) + "\n"

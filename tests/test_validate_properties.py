@@ -370,7 +370,7 @@ NUMERIC_BASES = {"xs:double", "xs:decimal", "xs:integer", "xs:positiveInteger"}
 NUMERIC_BASES |= {"xs:nonNegativeInteger", "xs:float", "xs:int", "xs:long"}
 
 
-@pytest.mark.parametrize("kind", ["aircraft", "mission", "scenario", "robot"])
+@pytest.mark.parametrize("kind", ["aircraft", "mission", "scenario", "robot", "route"])
 def test_every_numeric_attribute_has_a_physical_range(kind: str) -> None:
     """The XSDs are the one table of ranges: a numeric attribute without both bounds (a
     new attribute typed finiteDouble, say) fails here, named."""

@@ -1,11 +1,13 @@
-"""Wheel odometry + IMU + GPS + laser registration -> :class:`PoseEstimate`.
+"""Wheel odometry + IMU + GPS + laser registration + ceiling -> :class:`PoseEstimate`.
 
 A thin adapter over :class:`behaviours.laws.localisation.PoseFilter` (an EKF on the
 robot's pose in A augmented with the aircraft placement): predict on every new wheel
 reading (thesis eq. 2.1, 2.2, with the IMU's yaw rate), correct on every new GPS fix, and
 on every laser registration of the aircraft the :class:`AircraftRegistrar` makes. The
 pose in the aircraft frame is the filter's, through its *estimated* placement: the
-nominal parking pose only until the first registration.
+nominal parking pose only until the first registration. Under a hangar ceiling, with an
+upward camera and a mosaic (issue 17), each new ceiling image is localised against the
+mosaic and fused as a pose fix (:class:`behaviours.sensing.ceiling.CeilingFixer`).
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import py_trees
 from behaviours.base import Node
 from behaviours.keys import POSE, PROGRESS, SENSOR_FRAME, MissionProgress
 from behaviours.laws.localisation import PoseFilter
+from behaviours.sensing.ceiling import CeilingFixer
 from behaviours.sensing.registration import AircraftRegistrar
 from executive.core.frames import AircraftPlacement, Pose2
 from executive.core.records import FrameReference, RegistrationRecord, SensorFrame, WheelSpeeds
@@ -27,6 +30,7 @@ class Localise(Node):
 
     ``registrar`` None: no laser registration (the pose in F stays on the nominal
     placement, e.g. a mission whose aircraft has no footprint in laser range).
+    ``ceiling`` None: no ceiling fixes (no upward camera or no mosaic).
     """
 
     reads = (SENSOR_FRAME,)
@@ -40,10 +44,12 @@ class Localise(Node):
         placement: AircraftPlacement,
         registrar: AircraftRegistrar | None = None,
         name: str = "localise",
+        ceiling: CeilingFixer | None = None,
     ) -> None:
         super().__init__(name)
         self.filter = PoseFilter(initial, track=track, placement=placement)
         self.registrar = registrar
+        self.ceiling = ceiling
         self._wheels_stamp: float | None = None
         self._gps_stamp: float | None = None
         self._last: RegistrationRecord | None = None
@@ -73,11 +79,15 @@ class Localise(Node):
                 sources.append("imu")
             if self.registrar is not None:
                 self.registrar.record_pose(wheels.stamp, self.filter.pose)
+            if self.ceiling is not None:
+                self.ceiling.record_pose(wheels.stamp, self.filter.pose)
         gps = frame.gps
         if gps is not None and gps.stamp != self._gps_stamp:
             self.filter.update_gps(gps)
             self._gps_stamp = gps.stamp
             sources.append("gps")
+        if self.ceiling is not None and self.ceiling.step(frame.stamp, frame.ceiling, self.filter):
+            sources.append("ceiling")
         reference, anchor = FrameReference.NOMINAL, ""
         if self.registrar is not None:
             record = self.registrar.step(frame, self.filter)
@@ -100,4 +110,10 @@ class Localise(Node):
         self.feedback_message = (
             f"sigma_F {sigma:.3f} m, confidence_F {estimate.confidence_f:.2f}, {reference}"
         )
+        if self.ceiling is not None:
+            counts = self.ceiling.counts
+            self.feedback_message += (
+                f", ceiling fixes {counts['accepted']}/{counts['images']} "
+                f"({counts['rejected']} refused)"
+            )
         return py_trees.common.Status.SUCCESS

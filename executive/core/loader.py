@@ -19,12 +19,14 @@ from types import MappingProxyType
 from lxml import etree
 
 from executive.core import checks
+from executive.core.frames import Pose2
 from executive.core.model import (
     DEFAULT_GEOFENCE_MARGIN,
     Aircraft,
     Airport,
     CameraKind,
     CameraSpec,
+    CeilingCameraSpec,
     Checkpoint,
     Circle,
     Dimensions,
@@ -41,11 +43,14 @@ from executive.core.model import (
     SafetyRadii,
     ServoMethod,
     Shape,
+    TaughtRoute,
     TurnMode,
     Waypoint,
     ZoneKind,
 )
-from executive.core.problems import InvalidInputError, Problem, ProblemSink
+from executive.core.mosaicfile import MosaicFormatError, read_mosaic
+from executive.core.problems import InvalidInputError, Problem, ProblemSink, SourceLocation
+from executive.core.taught_route import load_route
 from executive.core.xmlreader import (
     ElementReader,
     display_path,
@@ -319,6 +324,13 @@ def _build_mission(
     station_el, parking_el = r.child(airport_el, "station"), r.child(airport_el, "parking")
     assert station_el is not None and parking_el is not None
     airport = Airport(r.pose(station_el), r.pose(parking_el), tuple(zones))
+    mosaic_el = r.child(airport_el, "ceiling-mosaic")
+    ceiling_mosaic = None
+    if mosaic_el is not None:
+        ceiling_mosaic, mosaic_problems = load_reference(
+            r, "file", path, root_dir, _checked_mosaic, "mission", mosaic_el, "ceiling-mosaic"
+        )
+        sink.extend(mosaic_problems)
 
     approach_el = r.child(root, "approach")
     return_el = r.child(root, "return")
@@ -332,6 +344,9 @@ def _build_mission(
     hpose = r.pose(handover_el)
     handover = Waypoint(
         "handover", hpose.x, hpose.y, Frame.AIRPORT, hpose.theta, None, r.where(handover_el)
+    )
+    taught_route = _taught_route(
+        r, r.child(approach_el, "taught-route"), path, root_dir, platform, hpose, ceiling_mosaic
     )
 
     checkpoint_el = r.children(r.child(root, "inspection"), "checkpoint")
@@ -353,11 +368,76 @@ def _build_mission(
         return_route=return_route,
         description=r.text(r.child(root, "description")),
         source=sink.file,
+        ceiling_mosaic=ceiling_mosaic,
+        taught_route=taught_route,
     )
     # Geometry runs even when other problems were found, so all are reported at once;
     # it skips references that did not resolve (already reported).
     _check_placement(r, mission, checkpoint_el, [*approach_wp, *return_wp], station_el, handover_el)
     return None if sink else mission
+
+
+ROUTE_END_NEAR_P = 1.0
+"""Metres from the handover point P within which a taught approach route must end (the
+approach's last navigation, metric go-to-goal, covers the rest)."""
+
+
+def _taught_route(
+    r: ElementReader,
+    el: etree._Element | None,
+    path: Path,
+    root_dir: Path,
+    platform: Platform,
+    handover: Pose2,
+    mosaic: Path | None,
+) -> TaughtRoute | None:
+    """The approach's ``<taught-route>`` (issue 17): loaded, ending near P, at a speed the
+    platform has, on the mission's mosaic if it names one."""
+    if el is None:
+        return None
+    route, problems = load_reference(
+        r, "file", path, root_dir, lambda p: load_route(p, root_dir), "mission", el, "taught-route"
+    )
+    r.sink.extend(problems)
+    if route is None:
+        return None
+    gap = math.hypot(route.end.x - handover.x, route.end.y - handover.y)
+    if gap > ROUTE_END_NEAR_P:
+        r.problem(
+            el,
+            "taught-route-end",
+            f"taught route '{route.id}' ends {gap:.2f} m from the handover point P "
+            f"({route.end.x:g}, {route.end.y:g} vs {handover.x:g}, {handover.y:g}); it must "
+            f"end within {ROUTE_END_NEAR_P:g} m",
+            "file",
+        )
+    if abs(route.speed) > platform.max_speed:
+        r.problem(
+            el,
+            "speed-limit",
+            f"taught route '{route.id}' speed {abs(route.speed):g} m/s exceeds the "
+            f"platform's max-speed {platform.max_speed:g} m/s",
+            "file",
+        )
+    if mosaic is not None and mosaic.resolve() != route.mosaic.resolve():
+        r.problem(
+            el,
+            "taught-route-mosaic",
+            f"taught route '{route.id}' was taught on mosaic '{display_path(route.mosaic)}', "
+            f"not the airport's ceiling-mosaic '{display_path(mosaic)}'",
+            "file",
+        )
+    return route
+
+
+def _checked_mosaic(path: Path) -> Path:
+    """``path`` once :func:`~executive.core.mosaicfile.read_mosaic` has read it whole."""
+    try:
+        read_mosaic(path)
+    except MosaicFormatError as exc:
+        where = SourceLocation(display_path(path))
+        raise InvalidInputError([Problem(where, "mosaic-format", str(exc))]) from None
+    return path
 
 
 def _build_platform(r: ElementReader, el: etree._Element | None) -> Platform:
@@ -441,8 +521,9 @@ def _build_platform(r: ElementReader, el: etree._Element | None) -> Platform:
             f"track {track:g} m is wider than the platform ({width:g} m)",
             "track",
         )
+    length = r.num(el, "length")
     return Platform(
-        length=r.num(el, "length"),
+        length=length,
         width=width,
         track=track,
         max_speed=r.num(el, "max-speed"),
@@ -452,7 +533,36 @@ def _build_platform(r: ElementReader, el: etree._Element | None) -> Platform:
         max_jerk=r.num(el, "max-jerk"),
         cameras=MappingProxyType(cameras),
         lasers=MappingProxyType(lasers),
+        ceiling_camera=_ceiling_camera(r, r.child(el, "ceiling-camera"), length, width),
     )
+
+
+def _ceiling_camera(
+    r: ElementReader, el: etree._Element | None, length: float, width: float
+) -> CeilingCameraSpec | None:
+    """The platform's upward camera (issue 17), which must sit on the robot's footprint."""
+    if el is None:
+        return None
+    spec = CeilingCameraSpec(
+        mount_x=r.num(el, "x"),
+        mount_y=r.num(el, "y"),
+        mount_z=r.num(el, "z", 0.6),
+        mount_yaw=r.angle(el, "yaw-deg"),
+        width_px=int(r.num(el, "width-px")),
+        height_px=int(r.num(el, "height-px")),
+        hfov=r.angle(el, "hfov-deg"),
+        rate_hz=r.num(el, "rate-hz"),
+        where=r.where(el),
+    )
+    if abs(spec.mount_x) > length / 2.0 or abs(spec.mount_y) > width / 2.0:
+        r.problem(
+            el,
+            "ceiling-camera-mount",
+            f"ceiling-camera at ({spec.mount_x:g}, {spec.mount_y:g}) m is off the robot's "
+            f"{length:g} m x {width:g} m footprint",
+            "x",
+        )
+    return spec
 
 
 def _waypoint(r: ElementReader, el: etree._Element, platform: Platform) -> Waypoint:

@@ -15,6 +15,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from enum import StrEnum
+from pathlib import Path
 
 import numpy as np
 
@@ -221,6 +222,49 @@ class LaserSpec:
 
 
 @dataclass(frozen=True, slots=True)
+class CeilingCameraSpec:
+    """The upward-looking camera of ceiling navigation (issue 17, seed 002 §2): a pinhole
+    with its optical axis straight up at ``(mount_x, mount_y)`` in R, ``mount_z`` above
+    the floor, turned by ``mount_yaw`` (rad) about the vertical; ``hfov`` (rad) across
+    ``width_px`` square pixels; ``rate_hz`` images a second.
+
+    Image axes as in :mod:`sim2d.ceiling`: the top of the image is the camera's forward,
+    u grows towards its left (docs/ceiling-navigation.md). ``fx``, ``fy``, ``cx``, ``cy``
+    are the intrinsics in OpenCV's convention (pixel (i, j) centred at (i, j)), so the
+    spec reads directly where an upward camera is expected
+    (:func:`behaviours.laws.ceiling_landmarks.law_camera_for`,
+    :func:`sim2d.ceiling.upward_camera_for`).
+    """
+
+    mount_x: float
+    mount_y: float
+    mount_yaw: float
+    width_px: int
+    height_px: int
+    hfov: float
+    rate_hz: float
+    mount_z: float = 0.6
+    where: SourceLocation = field(default=_NOWHERE, compare=False, repr=False)
+
+    @property
+    def fx(self) -> float:
+        """Focal length in pixels: ``width_px / (2 tan(hfov / 2))``."""
+        return self.width_px / (2.0 * math.tan(0.5 * self.hfov))
+
+    @property
+    def fy(self) -> float:
+        return self.fx
+
+    @property
+    def cx(self) -> float:
+        return 0.5 * (self.width_px - 1)
+
+    @property
+    def cy(self) -> float:
+        return 0.5 * (self.height_px - 1)
+
+
+@dataclass(frozen=True, slots=True)
 class Platform:
     """The robot: footprint (m) and limits (m/s, rad/s, m/s², rad/s², m/s³), sensors."""
 
@@ -235,6 +279,8 @@ class Platform:
     lasers: Mapping[str, LaserSpec]
     track: float = 0.0
     """Left-to-right wheel centre distance (m), thesis eq. 2.2."""
+    ceiling_camera: CeilingCameraSpec | None = None
+    """The upward camera of ceiling navigation (issue 17); None: the robot has none."""
 
     @property
     def half_width(self) -> float:
@@ -300,6 +346,49 @@ class Waypoint:
 
 
 @dataclass(frozen=True, slots=True)
+class KeyImage:
+    """A key image of a taught route (seed 002 §2.3): the robot pose in the mosaic frame
+    M (= A) when it was taken, the mosaic landmarks it shows, its image file if kept."""
+
+    id: str
+    pose_m: Pose2
+    landmarks: frozenset[str]
+    image: Path | None = None
+    where: SourceLocation = field(default=_NOWHERE, compare=False, repr=False)
+
+
+@dataclass(frozen=True, slots=True)
+class TaughtRoute:
+    """A route taught under a hangar ceiling (issue 17, seed 002 §2.3, ``route.xsd``):
+    its key images in order, repeated at the longitudinal speed ``speed`` (V, m/s;
+    negative: backwards) by the VNHV law with eq. 10's ``settling_distance`` (m);
+    ``mosaic`` the ceiling mosaic file of its landmarks."""
+
+    id: str
+    mosaic: Path
+    ceiling_height: float
+    speed: float
+    settling_distance: float
+    max_heading_change: float
+    keys: tuple[KeyImage, ...]
+    source: str = ""
+    where: SourceLocation = field(default=_NOWHERE, compare=False, repr=False)
+
+    @property
+    def end(self) -> Pose2:
+        """The last key pose (in M = A)."""
+        return self.keys[-1].pose_m
+
+    @property
+    def length(self) -> float:
+        """Metres along the key poses."""
+        return sum(
+            math.hypot(b.pose_m.x - a.pose_m.x, b.pose_m.y - a.pose_m.y)
+            for a, b in zip(self.keys, self.keys[1:], strict=False)
+        )
+
+
+@dataclass(frozen=True, slots=True)
 class Checkpoint:
     """An inspection stop: pose in F, items to inspect, optional visual-servo target."""
 
@@ -332,6 +421,12 @@ class Mission:
     return_route: tuple[Waypoint, ...]
     description: str = ""
     source: str = ""
+    ceiling_mosaic: Path | None = None
+    """The ceiling mosaic file (issue 17, :mod:`behaviours.laws.mosaic`) named by the
+    airport's ``<ceiling-mosaic>``, resolved against the mission file; None: none."""
+    taught_route: TaughtRoute | None = None
+    """The approach as a route taught under the ceiling (issue 17, ``<approach>``'s
+    ``<taught-route>``) instead of waypoints; None: waypoints (or none)."""
 
     def nominal_placement(self) -> AircraftPlacement:
         """The aircraft's nominal parking pose as a frame transform."""

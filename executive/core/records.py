@@ -19,6 +19,7 @@ from enum import IntEnum, StrEnum
 from types import MappingProxyType
 
 import numpy as np
+from numpy.typing import NDArray
 
 from executive.core.frames import AircraftPlacement, FloatArray, Pose2
 from executive.core.model import CameraKind, Platform
@@ -141,13 +142,25 @@ class Bumpers:
         return self.front or self.rear
 
 
+@dataclass(frozen=True, slots=True, eq=False)
+class CeilingImage:
+    """One image of the upward (ceiling) camera taken at ``stamp``: H x W grey levels,
+    u along the image's columns, v along its rows (docs/ceiling-navigation.md; seed 002
+    §2)."""
+
+    stamp: float
+    image: NDArray[np.uint8]
+
+
 @dataclass(frozen=True, slots=True)
 class SensorFrame:
     """The latest reading of every sensor at time ``stamp``.
 
-    ``gps`` is None while there is no fix. Mappings are keyed by sensor id: lasers
-    (``front``, ``rear``), cameras (``front-left``, ``front-right``, ``rear-left``,
-    ``rear-right``, ``ptz``) and pan-tilt units (the platform camera ids).
+    ``gps`` is None while there is no fix; ``ceiling`` the latest upward image (None
+    when the platform has no upward camera or it has sent no image yet). Mappings are
+    keyed by sensor id: lasers (``front``, ``rear``), cameras (``front-left``,
+    ``front-right``, ``rear-left``, ``rear-right``, ``ptz``) and pan-tilt units (the
+    platform camera ids).
     """
 
     stamp: float
@@ -158,6 +171,7 @@ class SensorFrame:
     imu: ImuReading | None = None
     gps: GpsFix | None = None
     bumpers: Bumpers = field(default_factory=lambda: Bumpers(0.0))
+    ceiling: CeilingImage | None = None
 
 
 def camera_ids(platform: Platform, unit: str) -> tuple[str, ...]:

@@ -281,54 +281,57 @@ def load_reference(
     library_root: Path,
     load: Callable[[Path], M],
     referrer: str,
+    element: etree._Element | None = None,
+    label: str | None = None,
 ) -> tuple[M | None, list[Problem]]:
-    """Load the file named by the root element's ``attribute`` (a path relative to
-    ``source``, a ``referrer`` file such as a mission) with ``load``; it may not leave
-    ``library_root``.
+    """Load the file named by ``element``'s (default: the root element's) ``attribute``
+    (a path relative to ``source``, a ``referrer`` file such as a mission) with ``load``;
+    it may not leave ``library_root``. ``label`` names the reference in codes and
+    messages (default: ``attribute``).
 
     Returns the model, or None and the referenced file's own problems (a problem is also
     recorded at the attribute). Codes: ``<attribute>-path`` for where the path leads,
     ``<attribute>-invalid`` when the file has problems of its own.
     """
-    root = r.doc.root
+    root = r.doc.root if element is None else element
     ref = r.str_(root, attribute)
     rel = Path(ref)
+    name = label or attribute
 
     def complain(code: str, message: str) -> tuple[None, list[Problem]]:
-        r.problem(root, f"{attribute}-{code}", message, attribute)
+        r.problem(root, f"{name}-{code}", message, attribute)
         return None, []
 
     if len(ref) > MAX_REFERENCE_CHARS:
         return complain(
             "path",
-            f"{attribute} path is {len(ref)} characters long; the limit is "
+            f"{name} path is {len(ref)} characters long; the limit is "
             f"{MAX_REFERENCE_CHARS} (a relative path inside the mission library)",
         )
     if rel.is_absolute() or ref.startswith(("/", "\\")) or ":" in ref.split("/")[0]:
-        return complain("path", f"{attribute} path '{ref}' must be relative to the {referrer} file")
+        return complain("path", f"{name} path '{ref}' must be relative to the {referrer} file")
     try:
         library = library_root.resolve()
         target = (source.resolve().parent / rel).resolve()
     except (OSError, RuntimeError) as exc:  # a symlink loop, a component too long
-        return complain("path", f"{attribute} path '{ref}' cannot be resolved: {exc}")
+        return complain("path", f"{name} path '{ref}' cannot be resolved: {exc}")
     if not target.is_relative_to(library):
         return complain(
             "path",
-            f"{attribute} path '{ref}' leads outside the mission library root "
-            f"'{display_path(library)}'",
+            f"{name} path '{ref}' leads outside the mission library root '{display_path(library)}'",
         )
     try:
         mode = target.stat().st_mode
     except OSError:
-        return complain("path", f"{attribute} file '{ref}' does not exist")
+        return complain("path", f"{name} file '{ref}' does not exist")
     if not stat.S_ISREG(mode):
         what = file_kind(mode)
-        return complain("path", f"{attribute} file '{ref}' is {what}, not a regular file")
+        return complain("path", f"{name} file '{ref}' is {what}, not a regular file")
     try:
         return load(target), []
     except InvalidInputError as exc:
         complain(
             "invalid",
-            f"{attribute} file '{ref}' has {len(exc.problems)} problem(s), listed with its name",
+            f"{name} file '{ref}' has {len(exc.problems)} problem(s), listed with its name",
         )
         return None, list(exc.problems)
