@@ -108,10 +108,11 @@ def _describe(path: Path) -> str:
 
 def cmd_validate(args: argparse.Namespace) -> int:
     files: list[Path] = [Path(f) for f in args.files]
+    library = None
     if not files:
-        files = shipped_mission_files()
+        files, library = _library_to_validate()
         if not args.json:
-            print(f"validating the shipped mission library in {missions_dir()}")
+            print(library["said"])
     results = []
     for path in files:
         problems = check_any(path, args.library)
@@ -129,6 +130,7 @@ def cmd_validate(args: argparse.Namespace) -> int:
     if args.json:
         report = {
             "valid": all_valid,
+            **({"library": library} if library is not None else {}),  # no FILE: which one
             "files": [
                 {
                     "file": str(path),
@@ -160,6 +162,27 @@ def cmd_validate(args: argparse.Namespace) -> int:
             + (f" ({total} problems)" if total else "")
         )
     return EXIT_OK if all_valid else EXIT_BAD_INPUT
+
+
+def _library_to_validate() -> tuple[list[Path], dict[str, str]]:
+    """``validate`` without FILE: the current folder's mission library, else the shipped one.
+
+    The rule is :func:`executive.scaffold.find_library`'s; the dict says which one it is
+    (``path``, ``source``: current-folder or installed, ``said``: the line printed).
+    """
+    from executive.scaffold import find_library, library_xml_files
+
+    found = find_library(Path.cwd())
+    if found is not None:
+        files = library_xml_files(found)
+        said = f"validating the mission library of the current folder, {found}"
+        return files, {"path": str(found), "source": "current-folder", "said": said}
+    said = (
+        f"validating the shipped mission library in {missions_dir()} (the current folder "
+        "is in no mission library: no */aircraft.xml here nor in a missions/ folder above)"
+    )
+    installed = {"path": str(missions_dir()), "source": "installed", "said": said}
+    return shipped_mission_files(), installed
 
 
 def _bad_argument(message: str) -> int:
@@ -224,7 +247,31 @@ def _check_mission_file(path: Path) -> list[Problem]:
 
 
 def _default_scenario(mission: Path) -> Path:
-    return mission.resolve().parent / "scenarios" / "clear-apron.xml"
+    """The scenario dry-run stages ``mission`` in without --scenario: the mission's own,
+    scenarios/<mission's stem>.xml beside it, when that file exists (missions/a320/
+    hangar.xml runs in scenarios/hangar.xml), else the type's scenarios/clear-apron.xml."""
+    folder = mission.resolve().parent / "scenarios"
+    own = folder / f"{mission.stem}.xml"
+    return own if own.is_file() else folder / "clear-apron.xml"
+
+
+def _no_default_scenario(mission: Path) -> str:
+    """Why a dry-run without --scenario has nothing to run, and the three ways out."""
+    import shlex
+
+    wanted = mission.parent / "scenarios" / "clear-apron.xml"
+    return (
+        f"{mission}: no scenario to run it in. Without --scenario, dry-run runs the "
+        f"mission's own scenarios/{mission.stem}.xml or else the clear-apron scenario, "
+        f"{wanted} (scenarios/clear-apron.xml beside the mission file), and there is "
+        "neither. Either:\n"
+        f"  - name a scenario: walkaround dry-run {shlex.quote(str(mission))} --scenario FILE\n"
+        f"  - or create {wanted}: a scenario whose mission attribute is "
+        f'"../{mission.name}" (copy a shipped type\'s scenarios/clear-apron.xml and change '
+        "its mission and id; docs/scenario-format.md)\n"
+        "  - or start a new aircraft type with `walkaround new TYPE`: it writes the "
+        "aircraft file, a mission and this scenario together (docs/new-aircraft-type.md)"
+    )
 
 
 SEED_RANGE = (0, 2**32 - 1)
@@ -325,6 +372,8 @@ def _dry_run(args: argparse.Namespace, stop: StopRequest) -> int:
     if problems:
         return _report(problems)
     scenario_path = args.scenario or _default_scenario(mission_path)
+    if args.scenario is None and not (scenario_path.exists() or scenario_path.is_symlink()):
+        return _bad_argument(_no_default_scenario(mission_path))
     problems = check_any(scenario_path)
     if problems:
         return _report(problems)
@@ -513,8 +562,8 @@ def cmd_show(args: argparse.Namespace) -> int:
     from executive import export
     from executive.compiler import CompileError, compile_mission
 
+    suffixes = {"png": (".png",), "svg": (".svg",), "html": (".html", ".htm")}.get(args.format, ())
     if args.out is not None:
-        suffixes = {"png": (".png",), "svg": (".svg",)}.get(args.format, ())
         problem = _output_file_problem(args.out, suffixes)
         if problem:
             return _bad_argument(problem)
@@ -527,20 +576,29 @@ def cmd_show(args: argparse.Namespace) -> int:
         return _report(list(exc.problems))
     root = compiled.root
     fmt = args.format
-    if fmt in ("png", "svg"):
+    # drawings: the overview (navigations and checkpoints folded) unless --full
+    view = export.overview(root)
+    folded = () if args.full else view.folded
+    notes = {} if args.full else view.notes()
+    if fmt in ("png", "svg", "html"):
         out = args.out or Path(f"{args.mission.stem}.{fmt}")
-        if out.suffix != f".{fmt}":
+        if out.suffix.lower() not in suffixes:
             out = out.with_suffix(f".{fmt}")
-        from executive.core.files import produce_atomic
+        from executive.core.files import produce_atomic, write_atomic
 
         out.parent.mkdir(parents=True, exist_ok=True)
-        produce_atomic(out, lambda tmp: export.render(root, tmp))
+        if fmt == "html":
+            from executive.treeview import to_html
+
+            write_atomic(out, to_html(root, title=f"mission {compiled.mission.id}").encode())
+        else:
+            produce_atomic(out, lambda tmp: export.render(root, tmp, folded=folded, notes=notes))
         print(f"wrote {out}")
         return EXIT_OK
     if fmt == "ascii":
         text = export.to_ascii(root, unicode=args.unicode)
     elif fmt == "dot":
-        text = export.to_dot(root)
+        text = export.to_dot(root, folded=folded, rankdir="LR")
     else:
         text = export.to_btcpp(root, keep_running_unselected=args.bt_runnable)
     if args.out is not None:
@@ -567,10 +625,17 @@ def build_parser() -> argparse.ArgumentParser:
         help="check aircraft, mission and scenario files; exit 0 if all are valid, 2 otherwise",
         description="Check aircraft, mission and scenario XML files: well-formedness, schema and "
         "semantics (references, radii, clearances, camera visibility). Every problem is "
-        "reported with file:line:column. Without FILE, checks the shipped mission library.",
+        "reported with file:line:column. Without FILE, checks the mission library of the current "
+        "folder (the folder itself when it holds */aircraft.xml, its parent when it holds "
+        "aircraft.xml, else the nearest missions/ folder holding */aircraft.xml, walking up), "
+        "else the shipped one, and says which (also in --json: library).",
     )
     validate.add_argument(
-        "files", nargs="*", metavar="FILE", help="aircraft, mission or scenario XML"
+        "files",
+        nargs="*",
+        metavar="FILE",
+        help="aircraft, mission, scenario, robot or campaign XML (default: every XML file of "
+        "the current folder's mission library, else of the shipped one)",
     )
     validate.add_argument("--json", action="store_true", help="machine-readable report on stdout")
     validate.add_argument(
@@ -588,19 +653,27 @@ def build_parser() -> argparse.ArgumentParser:
         description="Top view of a sim2d scenario at its start (or after --at seconds with "
         "the robot standing still): the aircraft at its true parking pose, forbidden zones, "
         "the route and checkpoints, obstacles and their paths, the robot, one scan of each "
-        "laser and the cameras' fields of view.",
+        "laser and the cameras' fields of view; a legend beside the plot names every kind "
+        "of mark drawn, and the checkpoint labels are placed so that none overlaps another.",
     )
     view.add_argument("scenario", type=Path, metavar="SCENARIO", help="scenario XML")
     view.add_argument("--out", type=Path, default=Path("world.png"), help="image (.png/.svg)")
-    view.add_argument("--at", type=float, default=0.0, help="simulated seconds to wait first")
+    view.add_argument(
+        "--at",
+        type=float,
+        default=0.0,
+        help="simulated seconds to wait first, 0 to the scenario's duration (default 0)",
+    )
     view.set_defaults(handler=cmd_sim_view)
 
     dry = sub.add_parser(
         "dry-run",
         help="run a mission with the executive in the simulator and write a report",
         description="Compile the mission, run it at a fixed rate against sim2d (the "
-        "mission's clear-apron scenario unless --scenario is given) and write the report "
-        "folder: trajectory.png, timeline.png, metrics.json, events.jsonl, journal.jsonl, "
+        "mission's own scenarios/<stem>.xml, else its clear-apron scenario, unless "
+        "--scenario is given) and write the report "
+        "folder: trajectory.png, timeline.png, avoidance.png (when it avoided something), "
+        "metrics.json, events.jsonl, journal.jsonl, "
         "run.mcap (a recording for Foxglove; docs/recording.md). "
         "Exit 0 when the mission succeeded (completed, no collision, no geofence breach, "
         "every checkpoint within tolerance, every item inspected with a fresh image), "
@@ -608,10 +681,24 @@ def build_parser() -> argparse.ArgumentParser:
         "SIGTERM 143, SIGHUP 129: the robot is sent a stop, a partial report is written).",
     )
     dry.add_argument("mission", type=Path, metavar="MISSION", help="mission XML")
-    dry.add_argument("--scenario", type=Path, default=None, help="scenario XML")
+    dry.add_argument(
+        "--scenario",
+        type=Path,
+        default=None,
+        help="scenario XML (default: scenarios/<MISSION's stem>.xml beside MISSION if it "
+        "exists, else scenarios/clear-apron.xml)",
+    )
     dry.add_argument("--out", type=Path, default=Path("dry-run"), help="report folder")
-    dry.add_argument("--rate", type=float, default=50.0, help="executive rate (Hz)")
-    dry.add_argument("--seed", type=int, default=None, help="override the scenario's seed")
+    dry.add_argument(
+        "--rate", type=float, default=50.0, help="executive rate, Hz, 10 to 50 (default 50)"
+    )
+    dry.add_argument(
+        "--seed",
+        type=int,
+        default=None,
+        help=f"override the scenario's seed, {SEED_RANGE[0]} to {SEED_RANGE[1]} "
+        "(default: the scenario's)",
+    )
     dry.add_argument(
         "--resume",
         action="store_true",
@@ -638,7 +725,8 @@ def build_parser() -> argparse.ArgumentParser:
         nargs="?",
         const="127.0.0.1:8080",
         default=None,
-        help="serve the operator's HUD (default 127.0.0.1:8080) and run at real time: "
+        help="serve the operator's HUD (default: off; given alone, 127.0.0.1:8080; a port "
+        "from 0 to 65535) and run at real time: "
         "watch and drive the run from a browser (docs/hud.md); the recording is also "
         "served to Foxglove on the same host, port 8765 (docs/recording.md)",
     )
@@ -646,21 +734,24 @@ def build_parser() -> argparse.ArgumentParser:
         "--pace",
         type=float,
         default=1.0,
-        help="with --live: simulated seconds per wall-clock second (default 1)",
+        help="with --live: simulated seconds per wall-clock second, more than 0, at most 100 "
+        "(default 1)",
     )
     dry.add_argument(
         "--max-time",
         type=float,
         default=None,
         metavar="S",
-        help="end the run after S simulated seconds (default: the scenario's duration)",
+        help="end the run after S simulated seconds, more than 0 (default: the scenario's "
+        "duration)",
     )
     dry.add_argument(
         "--max-missed-deadlines",
         type=int,
         default=DEFAULT_MISSED_DEADLINES,
         metavar="N",
-        help="stop the robot and fail the run after N consecutive missed tick deadlines, as "
+        help="stop the robot and fail the run after N (0 or more) consecutive missed tick "
+        "deadlines, as "
         "'walkaround run' does (default 0: never; a simulation's outcome does not depend on "
         "how busy the machine is; metrics.json counts the misses)",
     )
@@ -680,11 +771,27 @@ def build_parser() -> argparse.ArgumentParser:
         "show",
         help="print or draw the behaviour tree a mission compiles into",
         description="Compile the mission and show its tree: ascii (default), Graphviz dot, "
-        "a png/svg drawing, or BehaviorTree.CPP v4 XML (btcpp) that Groot2 can open.",
+        "a png/svg drawing, an interactive html page whose branches fold, or "
+        "BehaviorTree.CPP v4 XML (btcpp, one SubTree per navigation and checkpoint) that "
+        "Groot2 can open. dot, png and svg draw an overview (each navigation and checkpoint "
+        "folded into one box, one navigation in full as an example) unless --full.",
     )
     show.add_argument("mission", type=Path, metavar="MISSION", help="mission XML")
-    show.add_argument("--format", choices=("ascii", "dot", "png", "svg", "btcpp"), default="ascii")
-    show.add_argument("--out", type=Path, default=None, help="file (default: stdout / MISSION.png)")
+    show.add_argument(
+        "--format",
+        choices=("ascii", "dot", "png", "svg", "html", "btcpp"),
+        default="ascii",
+        help="ascii: text; dot: Graphviz; png, svg: a drawing; html: a page whose branches "
+        "fold; btcpp: BehaviorTree.CPP v4 XML",
+    )
+    show.add_argument(
+        "--out", type=Path, default=None, help="file (default: stdout / MISSION.png|svg|html)"
+    )
+    show.add_argument(
+        "--full",
+        action="store_true",
+        help="dot, png, svg: draw every behaviour instead of the overview",
+    )
     show.add_argument("--unicode", action="store_true", help="ascii: box-drawing characters")
     show.add_argument(
         "--bt-runnable",
@@ -702,9 +809,17 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_campaign_command(sub)
 
+    from executive.cli_new import add_new_command
+
+    add_new_command(sub)
+
     from executive.teach import add_teach_command
 
     add_teach_command(sub)
+
+    from executive.cli_help import show_defaults
+
+    show_defaults(parser)  # last: every subcommand's --help names its defaults
     return parser
 
 

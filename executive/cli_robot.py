@@ -252,6 +252,8 @@ def cmd_sim_robot(args: argparse.Namespace) -> int:
     problem = output_dir_problem(args.out)
     if problem:
         return _bad(f"--out {problem}")
+    if args.max_time is not None and not (math.isfinite(args.max_time) and args.max_time > 0):
+        return _bad(f"--max-time {args.max_time}: seconds, more than 0")
     for path in (args.scenario, args.robot):
         problems = check_any(path)
         if problems:
@@ -303,7 +305,9 @@ def add_robot_commands(sub: argparse._SubParsersAction) -> None:
     run.add_argument("mission", type=Path, metavar="MISSION", help="mission XML")
     run.add_argument("--robot", type=Path, required=True, help="robot XML (the wires)")
     run.add_argument("--out", type=Path, default=Path("run"), help="report folder")
-    run.add_argument("--rate", type=float, default=50.0, help="executive rate (Hz)")
+    run.add_argument(
+        "--rate", type=float, default=50.0, help="executive rate, Hz, 10 to 50 (default 50)"
+    )
     run.add_argument("--resume", action="store_true", help="continue OUT/journal.jsonl")
     run.add_argument("--quiet", action="store_true", help="no live progress line")
     run.add_argument(
@@ -312,10 +316,26 @@ def add_robot_commands(sub: argparse._SubParsersAction) -> None:
         action="store_false",
         help="do not record the run for Foxglove (default: OUT/run.mcap, run-2.mcap, ...)",
     )
-    run.add_argument("--max-time", type=float, default=None, metavar="S", help="stop after S s")
-    run.add_argument("--max-missed-deadlines", type=int, default=10, metavar="N")
     run.add_argument(
-        "--servo", action=argparse.BooleanOptionalAction, default=None, help="as in dry-run"
+        "--max-time",
+        type=float,
+        default=None,
+        metavar="S",
+        help="stop after S s, more than 0 (default: run until the mission ends)",
+    )
+    run.add_argument(
+        "--max-missed-deadlines",
+        type=int,
+        default=10,
+        metavar="N",
+        help="stop the robot and fail the run after N consecutive missed tick deadlines, "
+        "0 (never) or more (default 10)",
+    )
+    run.add_argument(
+        "--servo",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="as in dry-run (default: on for the A320-200 and B737-800, off for other types)",
     )
     run.set_defaults(handler=cmd_run)
 
@@ -330,7 +350,13 @@ def add_robot_commands(sub: argparse._SubParsersAction) -> None:
     sim.add_argument("scenario", type=Path, metavar="SCENARIO", help="scenario XML")
     sim.add_argument("--robot", type=Path, required=True, help="robot XML (the wires)")
     sim.add_argument("--out", type=Path, default=Path("sim-robot"), help="truth folder")
-    sim.add_argument("--max-time", type=float, default=None, metavar="S")
+    sim.add_argument(
+        "--max-time",
+        type=float,
+        default=None,
+        metavar="S",
+        help="end after S s, more than 0 (default: run until SIGINT or SIGTERM)",
+    )
     sim.set_defaults(handler=cmd_sim_robot)
 
     op = sub.add_parser(

@@ -1,9 +1,13 @@
 """Views and exports of a compiled mission tree (``compile_mission(...).root``).
 
 * :func:`to_ascii` - an indented text tree with composite markers and memory;
-* :func:`to_dot` - Graphviz DOT text, written here (no pydot, no graphviz binary);
-* :func:`render` - a PNG or SVG drawn with matplotlib on a layered layout (:func:`layout`);
-* :func:`to_btcpp` - BehaviorTree.CPP v4 XML that Groot2 can open.
+* :func:`to_dot` - Graphviz DOT text, written here (no pydot, no graphviz binary), whole
+  or folded as the overview;
+* :func:`render` - a PNG or SVG drawn with matplotlib, left to right (:func:`layout`: a
+  column per depth, a row per leaf, no two boxes overlapping), of the whole tree or of
+  its :func:`overview` (each navigation and checkpoint folded into one box);
+* :func:`to_btcpp` - BehaviorTree.CPP v4 XML that Groot2 can open, one SubTree per
+  navigation and checkpoint.
 
 Node roles, shared by every view: a :class:`~behaviours.base.Guard` is a *condition*, a
 :class:`~behaviours.base.Controller` a *controller*, any other leaf an *action*.
@@ -53,6 +57,16 @@ BT.CPP built-in, ``<Name>_2``... if two classes share a name). Attributes:
   id, a dataclass -> its simple fields as ``<param>_<field>``; callables, ``None`` and
   anything else are left out (braces become parentheses: ``{`` would mean a key).
 
+SubTrees: by default every navigation (``navigate <label>``) and every checkpoint
+(``checkpoint <id>``) is a ``<BehaviorTree>`` of its own, ``Navigate_<label>`` /
+``Checkpoint_<id>`` (IDs made of letters, digits, ``-`` and ``_``, as BT.CPP wants a model
+name), referenced once by ``<SubTree ID=... name=... _autoremap="true"/>`` where the branch
+stood: the main tree (``MainTree``, ~90 elements for the A320 instead of ~1560) shows the
+modes and phases, a checkpoint's subtree its navigations as SubTrees again. ``_autoremap``
+gives every subtree its parent's blackboard entries, BT.CPP's way of saying what walkaround
+does: one blackboard for the whole tree. Expanding the SubTrees gives back the flat export
+(``subtrees=None``) element for element.
+
 BT.CPP rejects an attribute its model does not declare, so ``<TreeNodesModel>`` declares
 every custom type once, with the union of the ports its instances use (blackboard ports
 with ``default="{entry}"`` so a node dropped in Groot2 comes wired).
@@ -74,10 +88,12 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import functools
 import inspect
+import math
 import re
 import textwrap
-from collections.abc import Iterator
+from collections.abc import Callable, Collection, Iterator, Mapping
 from pathlib import Path
 
 import matplotlib
@@ -85,6 +101,8 @@ import py_trees
 from lxml import etree
 from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
+from matplotlib.font_manager import FontProperties, findfont
+from matplotlib.ft2font import FT2Font, LoadFlags
 from matplotlib.patches import Patch
 
 from behaviours.base import Controller, Guard, Node
@@ -93,12 +111,17 @@ Behaviour = py_trees.behaviour.Behaviour
 
 __all__ = [
     "BTCPP_BUILTINS",
+    "Overview",
+    "Placed",
     "bt_port_name",
     "layout",
+    "mission_subtree_id",
+    "overview",
     "render",
     "to_ascii",
     "to_btcpp",
     "to_dot",
+    "tree_figure",
 ]
 
 # -- classification -------------------------------------------------------------------------
@@ -239,27 +262,46 @@ def _dot_escape(text: str) -> str:
     return "".join(c if c.isprintable() else " " for c in text)
 
 
-def to_dot(root: Behaviour, *, graph_name: str = "walkaround") -> str:
+def _unfolded(node: Behaviour, fold: set[int]) -> Iterator[Behaviour]:
+    """Pre-order, not below the nodes of ``fold`` (``id``s)."""
+    yield node
+    if id(node) not in fold:
+        for child in node.children:
+            yield from _unfolded(child, fold)
+
+
+def to_dot(
+    root: Behaviour,
+    *,
+    graph_name: str = "walkaround",
+    folded: Collection[Behaviour] = (),
+    rankdir: str = "TB",
+) -> str:
     """Graphviz DOT text of the tree: one ``nK [...]`` line per behaviour (pre-order), then
     one ``nP -> nC`` edge per parent-child pair.
 
     Composites are boxes labelled with their marker (Sequence ``→``, Selector ``?``,
     Parallel ``⇉``) and ``memory``/``reactive``; memory composites get a double border.
     Conditions (guards) are ellipses, controllers rounded boxes, other actions rounded
-    dashed boxes, decorators hexagons.
+    dashed boxes, decorators hexagons. A ``folded`` branch (:func:`overview`) is one node,
+    with a thick blue border and the count of behaviours below it. ``rankdir``: Graphviz's
+    ``TB`` (root on top) or ``LR`` (root on the left, a long sequence reads downwards).
     """
+    if rankdir not in ("TB", "LR", "BT", "RL"):
+        raise ValueError(f"to_dot: rankdir {rankdir!r} is not TB, LR, BT or RL")
+    fold = {id(node) for node in folded}
     ids: dict[int, str] = {}
     nodes: list[str] = []
     edges: list[str] = []
-    for node, _ in _preorder(root):
+    for node in _unfolded(root, fold):
         ident = f"n{len(ids)}"
         ids[id(node)] = ident
         kind = _kind(node)
-        label = (
-            _dot_escape(f"{_MARKERS_UNICODE[kind]} {node.name}")
-            + "\\n"
-            + _dot_escape(_description(node))
-        )
+        info = _description(node)
+        hidden = sum(1 for _ in _preorder(node)) - 1 if id(node) in fold else 0
+        if hidden:
+            info += f" ▸ {hidden} folded"
+        label = _dot_escape(f"{_MARKERS_UNICODE[kind]} {node.name}") + "\\n" + _dot_escape(info)
         attrs = [f'label="{label}"', f'fillcolor="{_FILL[kind]}"']
         if kind in _COMPOSITES:
             attrs += ["shape=box", 'style="filled"']
@@ -273,12 +315,15 @@ def to_dot(root: Behaviour, *, graph_name: str = "walkaround") -> str:
             attrs += ["shape=box", 'style="rounded,filled"']
         else:
             attrs += ["shape=box", 'style="rounded,filled,dashed"']
+        if hidden:
+            attrs += [f'color="{_FOLDED_EDGE}"', "penwidth=2.4"]
         nodes.append(f"  {ident} [{', '.join(attrs)}];")
-    for node, _ in _preorder(root):
-        edges += [f"  {ids[id(node)]} -> {ids[id(child)]};" for child in node.children]
+    for node in _unfolded(root, fold):
+        if id(node) not in fold:
+            edges += [f"  {ids[id(node)]} -> {ids[id(child)]};" for child in node.children]
     header = [
         f'digraph "{_dot_escape(graph_name)}" {{',
-        "  graph [rankdir=TB, ordering=out, nodesep=0.15, ranksep=0.45];",
+        f"  graph [rankdir={rankdir}, ordering=out, nodesep=0.15, ranksep=0.45];",
         '  node [fontname="Helvetica", fontsize=10, margin="0.08,0.04"];',
         "  edge [arrowhead=none];",
     ]
@@ -286,136 +331,310 @@ def to_dot(root: Behaviour, *, graph_name: str = "walkaround") -> str:
 
 
 # -- layered layout and matplotlib drawing ----------------------------------------------------
-def layout(root: Behaviour) -> list[tuple[Behaviour, float, int]]:
-    """``(node, x, depth)`` in pre-order: leaves at x = 0, 1, 2... in order, every parent
-    centred over its first and last child, depth 0 at the root."""
-    placed: list[tuple[Behaviour, float, int]] = []
-    next_leaf = 0
+@dataclasses.dataclass(frozen=True)
+class Placed:
+    """One box of a drawing, in points (1/72 in), y growing downwards from the top."""
 
-    def place(node: Behaviour, depth: int) -> float:
-        nonlocal next_leaf
-        index = len(placed)
-        placed.append((node, 0.0, depth))
-        if node.children:
-            xs = [place(child, depth + 1) for child in node.children]
-            x = (xs[0] + xs[-1]) / 2.0
-        else:
-            x = float(next_leaf)
-            next_leaf += 1
-        placed[index] = (node, x, depth)
-        return x
-
-    place(root, 0)
-    return placed
+    node: Behaviour
+    depth: int
+    x: float
+    """Left edge of the box."""
+    y: float
+    """Vertical centre of the box."""
+    width: float
+    height: float
+    hidden: int
+    """Behaviours folded away below this one (0: drawn with its children)."""
+    label: str
 
 
-_UNIT_W = 1.25  # inches per leaf
-_LEVEL_H = 1.0  # inches per depth level
-_MARGIN = 0.3
-_LEGEND_H = 0.45
-_FONT = 7.5
-_WRAP = 17  # characters per line of a box
+@dataclasses.dataclass(frozen=True)
+class Overview:
+    """What the collapsed drawing folds: each navigation and checkpoint (the branches the
+    BT.CPP export writes as SubTrees) is one box, except ``example``, the first navigation,
+    drawn in full once as a legend of what every navigation holds (its guard selector)."""
+
+    folded: tuple[Behaviour, ...]
+    example: Behaviour | None
+
+    def notes(self) -> dict[int, str]:
+        """The drawing's note on the example (:func:`layout`'s ``notes``)."""
+        if self.example is None:
+            return {}
+        return {id(self.example): "every navigation is like this one"}
+
+
+def overview(root: Behaviour, rule: SubtreeRule | None = None) -> Overview:
+    """The branches the overview folds (:class:`Overview`); ``rule`` defaults to
+    :func:`mission_subtree_id`. The root is never folded."""
+    rule = rule or mission_subtree_id
+    folded: list[Behaviour] = []
+    example: Behaviour | None = None
+
+    def walk(node: Behaviour, top: bool) -> None:
+        nonlocal example
+        ident = None if top else rule(node)
+        if ident is not None:
+            if example is None and ident.startswith("Navigate_"):
+                example = node
+                return  # drawn in full, nothing folded inside
+            folded.append(node)
+            return
+        for child in node.children:
+            walk(child, False)
+
+    walk(root, True)
+    return Overview(tuple(folded), example)
+
+
+_FONT = 8.0  # points
+_WRAP = 44  # characters per line of a box
+_PAD = 0.3  # box padding, in font sizes
+_ROW_GAP = 5.0  # points between two rows
+_COLUMN_GAP = 26.0  # points between two depth columns
+_MARGIN = 18.0
 _MAX_PIXELS = 65000  # Agg's limit is 2**16 pixels a side
 
 
-def _box_label(node: Behaviour) -> str:
+@functools.cache
+def _font(size: float) -> tuple[FT2Font, dict[str, float]]:
+    """DejaVu Sans (matplotlib's font) at ``size`` points, and a cache of its characters'
+    advance widths in points."""
+    font = FT2Font(findfont(FontProperties(family="DejaVu Sans")))
+    font.set_size(size, 72)
+    return font, {}
+
+
+def _text_size(text: str, size: float = _FONT) -> tuple[float, float]:
+    """Width and height (points) of ``text`` drawn at ``size`` points: advance widths summed
+    (no kerning, so 4 % more), lines 1.2 font sizes apart as matplotlib spaces them. A
+    thousand times faster than asking a renderer, and what a 1500-box tree needs."""
+    font, advances = _font(size)
+    widths: list[float] = []
+    for line in text.split("\n"):
+        total = 0.0
+        for char in line:
+            if char not in advances:
+                glyph = font.load_char(ord(char), flags=LoadFlags.NO_HINTING)
+                advances[char] = glyph.linearHoriAdvance / 65536.0
+            total += advances[char]
+        widths.append(total)
+    return max(widths) * 1.04 + 1.0, size * (1.2 * (len(widths) - 1) + 1.27)
+
+
+def _box_size(node: Behaviour, label: str) -> tuple[float, float]:
+    """The drawn box around ``label``: text plus padding; an ellipse (a condition) is
+    sqrt(2) larger, as matplotlib's ``ellipse`` box style draws it."""
+    w, h = _text_size(label)
+    pad = 2.0 * _PAD * _FONT
+    w, h = w + pad, h + pad
+    if _kind(node) == CONDITION:
+        w, h = w * math.sqrt(2.0), h * math.sqrt(2.0)
+    return w + 2.0, h + 2.0  # the edge line
+
+
+def _box_label(node: Behaviour, hidden: int = 0, note: str = "") -> str:
     kind = _kind(node)
     name = textwrap.wrap(
-        _one_line(node.name), _WRAP, break_long_words=True, break_on_hyphens=True
+        _one_line(node.name), _WRAP, break_long_words=True, break_on_hyphens=False
     ) or [""]
-    cls = type(node).__name__
-    memory = _memory(node)
-    info = f"{cls} (memory)" if memory else cls
+    info = _description(node) if kind in (SEQUENCE, SELECTOR) else type(node).__name__
+    if hidden:
+        info += f" ▸ {hidden} folded"
+    if note:
+        info += f" · {note}"
     return "\n".join([f"{_MARKERS_UNICODE[kind]} {name[0]}", *name[1:], info])
 
 
-def _box_style(node: Behaviour) -> dict:
+def layout(
+    root: Behaviour,
+    *,
+    folded: Collection[Behaviour] = (),
+    notes: Mapping[int, str] | None = None,
+) -> list[Placed]:
+    """The drawing's boxes in pre-order, left to right by depth (BT.CPP's and Groot2's
+    reading order turned sideways: a sequence reads downwards).
+
+    Every depth is a column as wide as its widest box; every leaf (or folded branch) gets
+    a row as tall as its box; a parent is centred on the rows of its children, and gets
+    more room if its own box is taller than theirs: no two boxes overlap. ``folded``
+    branches are drawn as one box counting the behaviours below; ``notes`` (``id(node)``
+    -> text) are added to a box's second line."""
+    notes = notes or {}
+    fold = {id(node) for node in folded}
+    shown: list[tuple[Behaviour, int, int, str, tuple[float, float]]] = []
+    span: dict[int, float] = {}
+
+    def measure(node: Behaviour, depth: int) -> float:
+        hidden = sum(1 for _ in _preorder(node)) - 1 if id(node) in fold else 0
+        label = _box_label(node, hidden, notes.get(id(node), ""))
+        size = _box_size(node, label)
+        shown.append((node, depth, hidden, label, size))
+        own = size[1] + _ROW_GAP
+        if node.children and not hidden:
+            own = max(own, sum(measure(child, depth + 1) for child in node.children))
+        span[id(node)] = own
+        return own
+
+    measure(root, 0)
+    columns: dict[int, float] = {}
+    for _, depth, _, _, (w, _) in shown:
+        columns[depth] = max(columns.get(depth, 0.0), w)
+    left = {0: _MARGIN}
+    for depth in range(1, len(columns)):
+        left[depth] = left[depth - 1] + columns[depth - 1] + _COLUMN_GAP
+    info = {id(n): (d, hidden, label, size) for n, d, hidden, label, size in shown}
+    placed: list[Placed] = []
+
+    def place(node: Behaviour, top: float) -> None:
+        depth, hidden, label, (w, h) = info[id(node)]
+        placed.append(
+            Placed(node, depth, left[depth], top + span[id(node)] / 2.0, w, h, hidden, label)
+        )
+        if node.children and not hidden:
+            block = sum(span[id(child)] for child in node.children)
+            y = top + (span[id(node)] - block) / 2.0
+            for child in node.children:
+                place(child, y)
+                y += span[id(child)]
+
+    place(root, _MARGIN)
+    return placed
+
+
+def _box_style(node: Behaviour, hidden: int) -> dict:
     kind = _kind(node)
     style = {
         "facecolor": _FILL[kind],
         "edgecolor": "#333333",
         "linewidth": 0.8,
-        "boxstyle": "round,pad=0.35",
+        "boxstyle": f"round,pad={_PAD}",
     }
     if kind in _COMPOSITES:
-        style["boxstyle"] = "square,pad=0.35"
+        style["boxstyle"] = f"square,pad={_PAD}"
         if _memory(node):
             style["linewidth"] = 2.0
     elif kind == CONDITION:
-        style["boxstyle"] = "ellipse,pad=0.25"
+        style["boxstyle"] = f"ellipse,pad={_PAD}"
     elif kind == DECORATOR:
-        style["boxstyle"] = "round4,pad=0.35"
+        style["boxstyle"] = f"round4,pad={_PAD}"
     elif kind == ACTION:
         style["linestyle"] = "--"
+    if hidden:
+        style["edgecolor"] = _FOLDED_EDGE
+        style["linewidth"] = 2.4
     return style
 
 
-def render(root: Behaviour, path: Path, *, dpi: float = 100.0) -> Path:
-    """Draw the tree to ``path``, a ``.png`` or ``.svg`` (no graphviz needed).
+_FOLDED_EDGE = "#1f5fbf"
+_LEGEND = (
+    (SEQUENCE, "→ Sequence"),
+    (SELECTOR, "? Selector"),
+    (PARALLEL, "⇉ Parallel"),
+    ("memory", "memory"),
+    ("folded", "▸ folded branch"),
+    (CONDITION, "◯ condition"),
+    (CONTROLLER, "▶ controller"),
+    (ACTION, "■ action"),
+)
 
-    Boxes sit on :func:`layout`'s grid, 1.25 in per leaf and 1 in per level, so a big tree
-    (the A320 mission with its servo branches: ~1500 behaviours, ~990 leaves) makes a
-    wide figure at a constant, readable text size; a PNG's resolution is lowered only
-    where it would exceed Agg's 65536-pixel limit. SVG text is kept as text (searchable).
-    """
-    path = Path(path)
-    suffix = path.suffix.lower()
-    if suffix not in (".png", ".svg"):
-        raise ValueError(f"render: {path.name} should end in .png or .svg")
-    placed = layout(root)
-    leaves = sum(1 for node, _, _ in placed if not node.children)
-    depth = max(d for _, _, d in placed)
-    width = max(6.0, leaves * _UNIT_W + 2 * _MARGIN)
-    height = (depth + 1) * _LEVEL_H + 2 * _MARGIN + _LEGEND_H
-    offset = (width - leaves * _UNIT_W) / 2.0
 
-    def xy(x: float, d: int) -> tuple[float, float]:
-        return offset + (x + 0.5) * _UNIT_W, height - _MARGIN - _LEGEND_H - (d + 0.5) * _LEVEL_H
-
-    where = {id(node): xy(x, d) for node, x, d in placed}
+def tree_figure(
+    root: Behaviour,
+    *,
+    folded: Collection[Behaviour] = (),
+    notes: Mapping[int, str] | None = None,
+) -> tuple[Figure, list[Placed]]:
+    """The drawing of :func:`layout`'s boxes on a figure of their size (one axes unit is
+    one point), elbow edges from a parent's right side to its children's left sides."""
+    placed = layout(root, folded=folded, notes=notes)
+    columns = max(p.x + p.width for p in placed) + _MARGIN
+    legend_cols = max(1, min(len(_LEGEND), int(columns // 95.0)))
+    legend_h = 16.0 * math.ceil(len(_LEGEND) / legend_cols) + 8.0
+    width = max(columns, 6 * 72.0)
+    bottom = max(p.y + p.height / 2.0 for p in placed) + _MARGIN
+    height = bottom + legend_h
+    where = {id(p.node): p for p in placed}
     with matplotlib.rc_context({"svg.fonttype": "none", "font.family": "DejaVu Sans"}):
-        fig = Figure(figsize=(width, height))
+        fig = Figure(figsize=(width / 72.0, height / 72.0))
         ax = fig.add_axes((0.0, 0.0, 1.0, 1.0))
         ax.set_xlim(0.0, width)
-        ax.set_ylim(0.0, height)
+        ax.set_ylim(height, 0.0)  # y down, from the top
         ax.set_axis_off()
-        edges = [
-            (where[id(node)], where[id(child)]) for node, _, _ in placed for child in node.children
-        ]
-        ax.add_collection(LineCollection(edges, colors="#777777", linewidths=0.7, zorder=1))
-        for node, _, _ in placed:
-            px, py = where[id(node)]
+        segments = []
+        for p in placed:
+            kids = [where[id(c)] for c in p.node.children if id(c) in where]
+            if not kids:
+                continue
+            mid = kids[0].x - _COLUMN_GAP / 2.0
+            segments.append(((p.x + p.width, legend_h + p.y), (mid, legend_h + p.y)))
+            ys = [legend_h + k.y for k in kids] + [legend_h + p.y]
+            segments.append(((mid, min(ys)), (mid, max(ys))))
+            segments += [((mid, legend_h + k.y), (k.x, legend_h + k.y)) for k in kids]
+        ax.add_collection(LineCollection(segments, colors="#777777", linewidths=0.7, zorder=1))
+        for p in placed:
             ax.text(
-                px,
-                py,
-                _box_label(node),
+                p.x + p.width / 2.0,
+                legend_h + p.y,
+                p.label,
                 ha="center",
                 va="center",
                 fontsize=_FONT,
                 zorder=3,
-                bbox=_box_style(node),
+                bbox=_box_style(p.node, p.hidden),
                 parse_math=False,  # a "$" in a name is a dollar sign
             )
-        legend = [
-            Patch(facecolor=_FILL[SEQUENCE], edgecolor="#333333", label="→ Sequence"),
-            Patch(facecolor=_FILL[SELECTOR], edgecolor="#333333", label="? Selector"),
-            Patch(facecolor=_FILL[PARALLEL], edgecolor="#333333", label="⇉ Parallel"),
-            Patch(facecolor="white", edgecolor="#333333", linewidth=2.0, label="memory"),
-            Patch(facecolor=_FILL[CONDITION], edgecolor="#333333", label="◯ condition"),
-            Patch(facecolor=_FILL[CONTROLLER], edgecolor="#333333", label="▶ controller"),
-            Patch(facecolor=_FILL[ACTION], edgecolor="#333333", linestyle="--", label="■ action"),
-        ]
+        handles = []
+        for kind, text in _LEGEND:
+            if kind == "memory":
+                handles.append(
+                    Patch(facecolor="white", edgecolor="#333333", linewidth=2.0, label=text)
+                )
+            elif kind == "folded":
+                handles.append(
+                    Patch(facecolor="white", edgecolor=_FOLDED_EDGE, linewidth=2.4, label=text)
+                )
+            else:
+                style = {"linestyle": "--"} if kind == ACTION else {}
+                handles.append(
+                    Patch(facecolor=_FILL[kind], edgecolor="#333333", label=text, **style)
+                )
         ax.legend(
-            handles=legend,
+            handles=handles,
             loc="upper left",
-            ncols=len(legend),
+            ncols=legend_cols,
             fontsize=_FONT,
             frameon=False,
-            bbox_to_anchor=(_MARGIN / width, 1.0 - 0.05 / height),
+            bbox_to_anchor=(_MARGIN / width, 1.0 - 2.0 / height),
         )
-        if suffix == ".png":
-            dpi = min(dpi, _MAX_PIXELS / max(width, height))
-        path.parent.mkdir(parents=True, exist_ok=True)
+    return fig, placed
+
+
+def render(
+    root: Behaviour,
+    path: Path,
+    *,
+    dpi: float = 100.0,
+    folded: Collection[Behaviour] = (),
+    notes: Mapping[int, str] | None = None,
+) -> Path:
+    """Draw the tree to ``path``, a ``.png`` or ``.svg`` (no graphviz needed): the boxes of
+    :func:`layout`, left to right, at a constant text size.
+
+    The whole A320 tree (~1560 behaviours, ~990 leaves) is a tall figure, a column of rows
+    (a PNG's resolution is lowered only where it would exceed Agg's 65536-pixel limit); with
+    :func:`overview`'s ``folded`` branches it is one screen wide. SVG text is kept as text
+    (searchable)."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in (".png", ".svg"):
+        raise ValueError(f"render: {path.name} should end in .png or .svg")
+    fig, _ = tree_figure(root, folded=folded, notes=notes)
+    width, height = fig.get_size_inches()
+    if suffix == ".png":
+        dpi = min(dpi, _MAX_PIXELS / max(width, height))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with matplotlib.rc_context({"svg.fonttype": "none", "font.family": "DejaVu Sans"}):
         fig.savefig(path, dpi=dpi, format=suffix[1:])
     return path
 
@@ -701,7 +920,80 @@ def _parallel_counts(node: py_trees.composites.Parallel) -> tuple[int, int]:
     raise TypeError(f"'{node.name}': no BT.CPP equivalent for {type(policy).__name__}")
 
 
-def _bt_element(node: Behaviour, model: _Model, keep_running_unselected: bool) -> etree._Element:
+SubtreeRule = Callable[[Behaviour], str | None]
+"""Which branches the BT.CPP export writes as SubTrees: the subtree's ID for such a branch's
+root, None for any other node."""
+
+_CHECKPOINT = re.compile(r"checkpoint (?P<id>.+?)(?: or skip)?")
+_NAVIGATION = re.compile(r"navigate (?P<label>.+)")
+
+
+def _model_name(text: str) -> str:
+    """Text BT.CPP accepts as a tree ID: no space, ``/``, ``.``, ``:``... (``-`` and ``_`` stay)."""
+    return re.sub(r"[^A-Za-z0-9_-]+", "_", text).strip("_") or "tree"
+
+
+def mission_subtree_id(node: Behaviour) -> str | None:
+    """The compiler's navigations (``navigate <label>``: ``Navigate_<label>``) and
+    checkpoints (``checkpoint <id>``, or ``checkpoint <id> or skip`` with an operator at
+    hand: ``Checkpoint_<id>``), the branches the BT.CPP export writes as SubTrees."""
+    if not node.children:
+        return None
+    match = _CHECKPOINT.fullmatch(node.name)
+    if match:
+        return "Checkpoint_" + _model_name(match["id"])
+    match = _NAVIGATION.fullmatch(node.name)
+    if match:
+        return "Navigate_" + _model_name(match["label"])
+    return None
+
+
+class _Subtrees:
+    """The ``<BehaviorTree>`` elements of the subtrees, in the order they are referenced."""
+
+    def __init__(self, rule: SubtreeRule, taken: set[str]) -> None:
+        self.rule = rule
+        self.taken = set(taken)
+        self.trees: list[etree._Element] = []
+
+    def define(self, base: str) -> tuple[str, etree._Element]:
+        """A new ``<BehaviorTree>`` with an unused ID made from ``base``."""
+        ident, n = base, 1
+        while ident in self.taken:
+            n += 1
+            ident = f"{base}_{n}"
+        self.taken.add(ident)
+        tree = etree.Element("BehaviorTree", ID=ident)
+        self.trees.append(tree)
+        return ident, tree
+
+
+def _bt_child(
+    node: Behaviour,
+    model: _Model,
+    keep_running_unselected: bool,
+    split: _Subtrees | None,
+    inside: str | None,
+) -> etree._Element:
+    """The element for ``node`` below its parent: ``<SubTree>`` if the rule says so (not
+    again for the root of the subtree being written, ``inside``), the node otherwise."""
+    base = split.rule(node) if split is not None else None
+    if split is None or base is None or base == inside:
+        return _bt_element(node, model, keep_running_unselected, split, inside)
+    ident, tree = split.define(base)
+    tree.append(_bt_element(node, model, keep_running_unselected, split, base))
+    # one blackboard for the whole tree, as in walkaround: every entry of the subtree is
+    # its parent's (BT.CPP v4's _autoremap; BT.CPP's own examples write it this way)
+    return etree.Element("SubTree", ID=ident, name=node.name, _autoremap="true")
+
+
+def _bt_element(
+    node: Behaviour,
+    model: _Model,
+    keep_running_unselected: bool,
+    split: _Subtrees | None = None,
+    inside: str | None = None,
+) -> etree._Element:
     kind = _kind(node)
     memory = _memory(node)
     if kind == SEQUENCE:
@@ -744,7 +1036,7 @@ def _bt_element(node: Behaviour, model: _Model, keep_running_unselected: bool) -
                 )
             )
     for child in node.children:
-        sub = _bt_element(child, model, keep_running_unselected)
+        sub = _bt_child(child, model, keep_running_unselected, split, inside)
         if keep_running_unselected and selected is not None and child not in selected:
             wrapper = etree.Element("KeepRunningUntilFailure", name=f"keep running: {child.name}")
             wrapper.append(sub)
@@ -754,14 +1046,30 @@ def _bt_element(node: Behaviour, model: _Model, keep_running_unselected: bool) -
 
 
 def to_btcpp(
-    root: Behaviour, *, tree_id: str = "walkaround", keep_running_unselected: bool = False
+    root: Behaviour,
+    *,
+    tree_id: str = "MainTree",
+    keep_running_unselected: bool = False,
+    subtrees: SubtreeRule | None = mission_subtree_id,
 ) -> str:
     """BehaviorTree.CPP v4 XML of the tree (mapping in the module docstring), pretty-printed,
     without an XML declaration (UTF-8). Groot2 opens it: every custom node type is declared
-    once in ``<TreeNodesModel>`` with its ports."""
+    once in ``<TreeNodesModel>`` with its ports.
+
+    ``subtrees`` names the branches written as ``<BehaviorTree>`` of their own and referenced
+    with ``<SubTree ID=... _autoremap="true"/>`` (by default :func:`mission_subtree_id`:
+    every navigation and checkpoint); ``None`` writes one flat tree."""
     model = _Model()
     document = etree.Element("root", BTCPP_format="4", main_tree_to_execute=tree_id)
     tree = etree.SubElement(document, "BehaviorTree", ID=tree_id)
-    tree.append(_bt_element(root, model, keep_running_unselected))
+    split = None
+    if subtrees is not None:
+        taken = {tree_id, *BTCPP_BUILTINS}
+        for node, _ in _preorder(root):
+            taken |= {type(node).__name__, "Walkaround" + type(node).__name__}
+        split = _Subtrees(subtrees, taken)
+    tree.append(_bt_element(root, model, keep_running_unselected, split, None))
+    if split is not None:
+        document.extend(split.trees)
     document.append(model.element())
     return etree.tostring(document, pretty_print=True, encoding="unicode")

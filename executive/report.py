@@ -2,18 +2,22 @@
 
 * ``metrics.json`` — outcome and reason; per checkpoint: reached, position and heading
   error against ground truth, time, items inspected; collisions, minimum clearance,
-  e-stops, geofence breaches; tick timing; compile warnings.
+  e-stops, geofence breaches; tick timing; compile warnings;
+  ``figures`` lists the pictures written beside it.
 * ``events.jsonl`` — every controller switch with its reason, safety events, faults.
-* ``trajectory.png`` — top view: aircraft, zones, obstacles, the path coloured by the
-  active controller, checkpoints with their achieved error.
+* ``trajectory.png`` — top view: aircraft, zones, obstacles, the true path coloured by the
+  active controller and the estimated one, checkpoints with their achieved error,
+  breaches, collisions, e-stops; a legend beside the plot names every kind of mark drawn
+  and only those, and the labels are placed so that none overlaps another
+  (:mod:`sim2d.labels`).
 * ``timeline.png`` — controller, v, omega and the closest obstacle against r_ES and
   r_OA-trigger over time.
+* ``avoidance.png`` — the avoidance episodes; only when the run avoided something.
 """
 
 from __future__ import annotations
 
 import io
-import itertools
 import json
 import math
 import warnings
@@ -26,9 +30,11 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.figure import Figure
 
 from executive.core.files import write_atomic
-from executive.dryrun import TRUTH_RATE_HZ, DryRun
+from executive.dryrun import TRUTH_RATE_HZ, AvoidanceSample, DryRun, Sample
+from sim2d.labels import Label, fit_height, kinds_legend, place_labels, tag_all
 from sim2d.view import draw_world
 
 PALETTE = plt.get_cmap("tab10")
@@ -209,18 +215,14 @@ def avoidance_metrics(run: DryRun) -> dict[str, object]:
 def write_report(run: DryRun, out: Path) -> Path:
     """Write the report folder; returns its path.
 
+    ``metrics.json`` is written last and lists under ``figures`` the pictures written
+    (``avoidance.png`` only when the run avoided something): it names no missing file,
+    even when writing a picture failed (that error is raised after it).
     Every file is written whole or not at all (:func:`~executive.core.files.write_atomic`:
     a temporary file renamed over the target, never through a symbolic link). An
     :class:`OSError` (a full disk) names the file it was writing.
     """
-    out.mkdir(parents=True, exist_ok=True)
-    write_atomic(out / "metrics.json", (json.dumps(metrics(run), indent=2) + "\n").encode())
-    write_atomic(
-        out / "events.jsonl",
-        "".join(
-            json.dumps(e.as_dict(), separators=(",", ":")) + "\n" for e in run.result.events
-        ).encode(),
-    )
+    figures: dict[str, bytes] = {}
     for name, draw in (
         ("trajectory.png", trajectory),
         ("timeline.png", timeline),
@@ -231,7 +233,27 @@ def write_report(run: DryRun, out: Path) -> Path:
             warnings.filterwarnings("ignore", category=UserWarning, module="matplotlib")
             drawn = draw(run, image)
         if drawn:
-            write_atomic(out / name, image.getvalue())
+            figures[name] = image.getvalue()
+    out.mkdir(parents=True, exist_ok=True)
+    write_atomic(
+        out / "events.jsonl",
+        "".join(
+            json.dumps(e.as_dict(), separators=(",", ":")) + "\n" for e in run.result.events
+        ).encode(),
+    )
+    written: list[str] = []
+    failure: OSError | None = None
+    for name, png in figures.items():
+        try:
+            write_atomic(out / name, png)
+        except OSError as exc:  # metrics.json is still written, naming what is there
+            failure = failure or exc
+        else:
+            written.append(name)
+    report = metrics(run) | {"figures": written}  # only the pictures in the folder
+    write_atomic(out / "metrics.json", (json.dumps(report, indent=2) + "\n").encode())
+    if failure is not None:
+        raise failure
     return out
 
 
@@ -268,35 +290,90 @@ def _controller_colours(run: DryRun) -> dict[str, object]:
 
 
 def trajectory(run: DryRun, path: Path | BinaryIO) -> bool:
-    fig, ax = plt.subplots(figsize=(10, 10), dpi=110)
-    draw_world(ax, run.robot, scans=False, cameras=False)
+    """Write :func:`trajectory_figure` as a PNG."""
+    fig = trajectory_figure(run)
+    fig.savefig(path, format="png")
+    plt.close(fig)
+    return True
+
+
+def _nearest_sample(samples: list[Sample], t: float) -> Sample | None:
+    """The sample nearest the time ``t`` (None for a run without samples)."""
+    return min(samples, key=lambda s: abs(s.t - t)) if samples else None
+
+
+def trajectory_figure(run: DryRun) -> Figure:
+    """The run seen from above: the world (no scan, no camera), the true path coloured by
+    the active controller, the estimated path, tracked movers, registrations, each
+    checkpoint's true pose labelled with its achieved error, breaches, collisions and
+    safety stops. The legend beside the plot lists every kind of mark drawn and only
+    those; the labels are placed where they collide with nothing (:mod:`sim2d.labels`)."""
+    fig, ax = plt.subplots(figsize=(12, 10), dpi=110, layout="constrained")
+    # the world's labels name the checkpoints where planned; ours, at the true pose,
+    # carry the errors: theirs are left out, their markers kept clear
+    planned = draw_world(ax, run.robot, scans=False, cameras=False)
     colours = _controller_colours(run)
     samples = run.samples
-    for a, b in itertools.pairwise(samples):
-        kind = controller_kind(a.controller)
-        ax.plot([a.true.x, b.true.x], [a.true.y, b.true.y], color=colours[kind], lw=1.6, zorder=6)
-    for name, colour in colours.items():
-        ax.plot([], [], color=colour, lw=2, label=name)
-    true = run.scenario.true_placement()
-    for cp, outcome in zip(run.scenario.mission.checkpoints, run.checkpoints, strict=True):
-        pose = true.pose_to_airport(cp.pose)
-        if outcome.position_error is not None:
-            label = (
-                f"{cp.id} {outcome.position_error * 100:.0f} cm {outcome.heading_error_deg:.1f}°"
-            )
-        else:
-            label = f"{cp.id} {'(resumed)' if outcome.reached else 'not reached'}"
-        ax.annotate(label, (pose.x, pose.y), fontsize=5, xytext=(4, -8), textcoords="offset points")
+    kinds = [controller_kind(s.controller) for s in samples]
+    i = 0
+    while i < len(samples) - 1:  # one line per stretch under one controller
+        j = i
+        while j < len(samples) - 1 and kinds[j] == kinds[i]:
+            j += 1
+        xy = np.array([(s.true.x, s.true.y) for s in samples[i : j + 1]])
+        line = ax.plot(*xy.T, color=colours[kinds[i]], lw=1.6, zorder=6)
+        tag_all(line, f"true path: {kinds[i]}")
+        i = j
+    if any(s.estimate is not None for s in samples):
+        est = np.array(
+            [(s.estimate.x, s.estimate.y) if s.estimate else (np.nan, np.nan) for s in samples]
+        )
+        tag_all(ax.plot(*est.T, color="black", lw=0.5, ls="--", zorder=6), "estimated path")
     _draw_tracks(ax, run)
     _draw_registration(ax, run)
+    true = run.scenario.true_placement()
+    labels: list[Label] = []
+    poses = [true.pose_to_airport(cp.pose) for cp in run.scenario.mission.checkpoints]
+    if poses:
+        marks = ax.plot(
+            [p.x for p in poses],
+            [p.y for p in poses],
+            "o",
+            mfc="none",
+            mec="#006d2c",
+            mew=0.8,
+            ms=6,
+            zorder=7,
+        )
+        tag_all(marks, "checkpoint (true pose)")
+    for cp, pose, outcome in zip(
+        run.scenario.mission.checkpoints, poses, run.checkpoints, strict=True
+    ):
+        if outcome.position_error is not None:
+            text = f"{cp.id} {outcome.position_error * 100:.0f} cm {outcome.heading_error_deg:.1f}°"
+        else:
+            text = f"{cp.id} {'(resumed)' if outcome.reached else 'not reached'}"
+        labels.append(Label(text, pose.x, pose.y, fontsize=5.5))
+    points = [(run.robot.truth.robot.x, run.robot.truth.robot.y)]
+    points += [(label.x, label.y) for label in planned]
     for t, zone in run.breaches:
-        s = min(samples, key=lambda s: abs(s.t - t))
-        ax.plot(s.true.x, s.true.y, "rx", ms=10, mew=2)
-        ax.annotate(f"breach {zone}", (s.true.x, s.true.y), color="red", fontsize=7)
+        s = _nearest_sample(samples, t)
+        if s is not None:
+            tag_all(ax.plot(s.true.x, s.true.y, "rx", ms=10, mew=2, zorder=8), "geofence breach")
+            labels.append(Label(f"breach {zone}", s.true.x, s.true.y, fontsize=7, color="red"))
     for c in run.robot.truth.collisions:
-        s = min(samples, key=lambda s: abs(s.t - c.time))
-        ax.plot(s.true.x, s.true.y, "k*", ms=12)
-    ax.legend(loc="upper right", fontsize=7, title="controller")
+        s = _nearest_sample(samples, c.time)
+        if s is not None:
+            tag_all(ax.plot(s.true.x, s.true.y, "k*", ms=12, zorder=8), "collision")
+            points.append((s.true.x, s.true.y))
+    for e in run.result.events:
+        kind = e.detail.get("kind") if e.kind == "safety" else None
+        s = _nearest_sample(samples, e.t) if kind in STOP_KINDS else None
+        if s is not None:
+            name = "e-stop" if kind == "estop-latched" else f"safety stop: {kind}"
+            style = {"marker": "X", "ls": "none", "ms": 8, "mec": "black", "mew": 0.5, "zorder": 8}
+            tag_all(ax.plot(s.true.x, s.true.y, color=STOP_COLOURS[kind], **style), name)
+            points.append((s.true.x, s.true.y))
     ax.set_aspect("equal")
     ax.autoscale_view()
     ax.set_xlabel("x east (m)")
@@ -307,10 +384,18 @@ def trajectory(run: DryRun, path: Path | BinaryIO) -> bool:
         fontsize=9,
     )
     ax.grid(True, lw=0.3, alpha=0.5)
-    fig.tight_layout()
-    fig.savefig(path, format="png")
-    plt.close(fig)
-    return True
+    fit_height(fig, ax)
+    kinds_legend(fig, ax)
+    place_labels(fig, ax, labels, avoid=points)
+    return fig
+
+
+STOP_COLOURS = {
+    "estop-latched": "#e31a1c",
+    "stale-sensor": "#ff7f00",
+    "fault-stop": "#6a3d9a",
+    "geofence-stop": "#b15928",
+}
 
 
 def _draw_tracks(ax: plt.Axes, run: DryRun) -> None:
@@ -321,7 +406,6 @@ def _draw_tracks(ax: plt.Axes, run: DryRun) -> None:
     by_id: dict[int, list] = {}
     for s in run.tracks:
         by_id.setdefault(s.id, []).append(s)
-    labelled = False
     for samples in by_id.values():
         if len(samples) < 2:
             continue
@@ -329,18 +413,12 @@ def _draw_tracks(ax: plt.Axes, run: DryRun) -> None:
         speed = float(np.median([math.hypot(s.vx, s.vy) for s in samples]))
         if float(np.hypot(*(xy[-1] - xy[0]))) <= 1.0 or speed <= 0.3:
             continue
-        ax.plot(
-            *xy.T,
-            color="0.45",
-            lw=0.7,
-            ls=":",
-            zorder=5,
-            label=None if labelled else "tracked obstacles",
-        )
-        labelled = True
+        line = ax.plot(*xy.T, color="0.45", lw=0.7, ls=":", zorder=5)
+        tag_all(line, "tracked obstacle's path")
         danger = np.array([s.danger >= 2 for s in samples])
         if danger.any():
-            ax.plot(*xy[danger].T, ".", color="red", ms=2, zorder=5)
+            dots = ax.plot(*xy[danger].T, ".", color="red", ms=2, zorder=5)
+            tag_all(dots, "tracked obstacle on the robot's path")
 
 
 def _draw_registration(ax: plt.Axes, run: DryRun) -> None:
@@ -349,33 +427,35 @@ def _draw_registration(ax: plt.Axes, run: DryRun) -> None:
     for r in run.registrations:
         if r.method != "global":
             continue
-        s = min(run.samples, key=lambda s: abs(s.t - r.t)) if run.samples else None
+        s = _nearest_sample(run.samples, r.t)
         if s is None:
             continue
-        ax.plot(
+        mark = ax.plot(
             s.true.x,
             s.true.y,
             marker="D",
+            ls="none",
             ms=5,
             zorder=7,
             color="green" if r.accepted else "orange",
             mec="black",
             mew=0.4,
         )
+        kind = "accepted" if r.accepted else "rejected"
+        tag_all(mark, f"global registration ({kind})")
     if run.final_placement is None:
         return
     for shape in run.scenario.mission.aircraft.footprint:
         pts = run.final_placement.to_airport_xy(shape.vertices(32))
         ring = np.vstack((pts, pts[:1]))
-        ax.plot(*ring.T, color="green", lw=0.8, ls="--", zorder=6)
-    ax.plot([], [], color="green", lw=0.8, ls="--", label="footprint as registered")
-    ax.plot([], [], "D", color="green", mec="black", mew=0.4, ms=5, label="global registration")
+        line = ax.plot(*ring.T, color="green", lw=0.8, ls="--", zorder=6)
+        tag_all(line, "footprint as registered")
 
 
 def timeline(run: DryRun, path: Path | BinaryIO) -> bool:
     samples = run.samples
     if not samples:
-        return
+        return False
     t = np.array([s.t for s in samples])
     safety = run.scenario.mission.safety
     fig, axes = plt.subplots(5, 1, figsize=(11, 10), dpi=100, sharex=True)
@@ -395,17 +475,25 @@ def timeline(run: DryRun, path: Path | BinaryIO) -> bool:
     axes[3].axhline(safety.r_oa_trigger, color="orange", ls="--", lw=0.8, label="r_OA-trigger")
     axes[3].set_ylim(0, max(6.0, safety.r_oa_trigger * 2))
     axes[3].set_ylabel("closest (m)")
-    axes[3].legend(fontsize=7, loc="upper right")
+    axes[3].legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.005, 1.0))
     loc = run.localisation
     if loc:
         lt = np.array([s.t for s in loc])
         axes[4].plot(lt, [s.position_error * 100 for s in loc], lw=0.8, label="pose in F error")
         axes[4].plot(lt, [s.sigma_f * 100 for s in loc], lw=0.8, ls="--", label="sigma_F (filter)")
+        named: set[bool] = set()
         for r in run.registrations:
             if r.method == "global":
-                axes[4].axvline(r.t, color="green" if r.accepted else "orange", lw=0.6)
+                verdict = "accepted" if r.accepted else "rejected"
+                axes[4].axvline(
+                    r.t,
+                    color="green" if r.accepted else "orange",
+                    lw=0.6,
+                    label=None if r.accepted in named else f"global registration ({verdict})",
+                )
+                named.add(r.accepted)
         axes[4].set_yscale("symlog", linthresh=10.0)
-        axes[4].legend(fontsize=7, loc="upper right")
+        axes[4].legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.005, 1.0))
     axes[4].set_ylabel("F error (cm)")
     axes[4].set_xlabel("simulated time (s)")
     for ax in axes:
@@ -416,13 +504,22 @@ def timeline(run: DryRun, path: Path | BinaryIO) -> bool:
     return True
 
 
+def _something_to_plot(samples: list[AvoidanceSample]) -> bool:
+    """Whether any avoidance sample has a finite value in one of the plotted rows."""
+    return any(
+        math.isfinite(v)
+        for a in samples
+        for v in (a.alpha_d, a.xi, a.beta_c, a.e_alpha, a.e_r, a.clearance)
+    )
+
+
 def avoidance_plot(run: DryRun, path: Path | BinaryIO) -> bool:
     """alpha_d, xi, beta_c, e_alpha, e_r (the spiral's, eqs. 4.1-4.16) and the true
     clearance against the time since each avoidance began, one colour per episode;
     velocity-obstacle and planner ticks show in the clearance panel only. No file when
-    the run avoided nothing."""
+    the run avoided nothing (no avoidance sample with a finite value to plot)."""
     samples = run.avoidance
-    if not samples:
+    if not _something_to_plot(samples):
         return False
     episodes = sorted({a.episode for a in samples})
     rows = (
@@ -448,7 +545,7 @@ def avoidance_plot(run: DryRun, path: Path | BinaryIO) -> bool:
     for ax, (name, _) in zip(axes, rows, strict=True):
         ax.set_ylabel(name, fontsize=8)
         ax.grid(True, lw=0.3, alpha=0.5)
-    axes[0].legend(fontsize=6, loc="upper right", ncol=2)
+    axes[0].legend(fontsize=6, loc="upper left", bbox_to_anchor=(1.005, 1.0))
     axes[-1].set_xlabel("time since the avoidance began (s)")
     fig.suptitle("obstacle avoidance episodes (spiral quantities; NaN for VO / planner)")
     fig.tight_layout()

@@ -7,8 +7,9 @@ exported file back into a py_trees tree that is compared with the original.
 
 from __future__ import annotations
 
-import itertools
 import re
+from collections import Counter
+from copy import deepcopy
 from pathlib import Path
 from typing import ClassVar
 
@@ -17,24 +18,36 @@ import py_trees
 import pydot
 import pytest
 from lxml import etree
+from matplotlib.backends.backend_agg import FigureCanvasAgg
 from py_trees.parsers.behaviour_tree_xml import parse_behaviour_tree_xml
 from py_trees.ports import PortInformation, PortsMixin
 
 from behaviours.base import Controller, Guard, Node
 from behaviours.guards.conditions import EmergencyStop
 from behaviours.keys import COMMAND, OBSTACLES, POSE, PROGRESS
-from executive.compiler import ResumableSequence, compile_mission
+from executive.compiler import (
+    CompileOptions,
+    GuardSelector,
+    ResumableSequence,
+    compile_mission,
+)
 from executive.core.loader import load_mission
 from executive.export import (
     BTCPP_BUILTINS,
+    _one_line,
     bt_port_name,
     layout,
+    mission_subtree_id,
+    overview,
     render,
     to_ascii,
     to_btcpp,
     to_dot,
+    tree_figure,
 )
+from tests.conftest import SHIPPED_MISSIONS
 
+LAB = SHIPPED_MISSIONS["lab"]
 Status = py_trees.common.Status
 Sequence = py_trees.composites.Sequence
 Selector = py_trees.composites.Selector
@@ -251,27 +264,70 @@ def test_dot_is_well_formed(which, request):
 
 
 # -- drawing ----------------------------------------------------------------------------------
-def test_layout_spaces_leaves_and_centres_parents():
+def overlapping(boxes, slack=0.0):
+    """Pairs of ``(x0, y0, x1, y1)`` boxes that overlap by more than ``slack`` (sweep on x)."""
+    order = sorted(range(len(boxes)), key=lambda i: boxes[i][0])
+    found, active = [], []
+    for i in order:
+        x0, y0, _, y1 = boxes[i]
+        active = [j for j in active if boxes[j][2] > x0 + slack]
+        found += [(j, i) for j in active if min(y1, boxes[j][3]) - max(y0, boxes[j][1]) > slack]
+        active.append(i)
+    return found
+
+
+def rect(p):
+    return (p.x, p.y - p.height / 2, p.x + p.width, p.y + p.height / 2)
+
+
+def png_size(path: Path) -> tuple[int, int]:
+    """Width and height from the PNG's IHDR chunk."""
+    header = path.read_bytes()[:24]
+    assert header[:8] == b"\x89PNG\r\n\x1a\n" and header[12:16] == b"IHDR"
+    return int.from_bytes(header[16:20], "big"), int.from_bytes(header[20:24], "big")
+
+
+def test_layout_columns_rows_and_centred_parents():
     root = small_tree(3)
     placed = layout(root)
-    assert [n for n, _, _ in placed] == [n for n, _ in preorder(root)]
-    where = {id(n): (x, d) for n, x, d in placed}
-    leaves = [x for n, x, _ in placed if not n.children]
-    assert leaves == [float(i) for i in range(len(leaves))]
-    for node, x, depth in placed:
-        if node.children:
-            xs = [where[id(c)][0] for c in node.children]
-            assert x == pytest.approx((xs[0] + xs[-1]) / 2)
-            assert all(where[id(c)][1] == depth + 1 for c in node.children)
-    for depth in {d for _, _, d in placed}:  # no two boxes of a level closer than a leaf step
-        xs = sorted(x for _, x, d in placed if d == depth)
-        assert all(b - a >= 1.0 for a, b in itertools.pairwise(xs))
+    assert [p.node for p in placed] == [n for n, _ in preorder(root)]
+    where = {id(p.node): p for p in placed}
+    for p in placed:
+        assert p.depth == next(d for n, d in preorder(root) if n is p.node)
+        kids = [where[id(c)] for c in p.node.children]
+        if kids:  # children in order below each other, one column to the right
+            assert all(k.x > p.x + p.width for k in kids)
+            assert [k.y for k in kids] == sorted(k.y for k in kids)
+            assert kids[0].y <= p.y <= kids[-1].y
+            if all(not k.node.children for k in kids) and len({k.height for k in kids}) == 1:
+                assert p.y == pytest.approx((kids[0].y + kids[-1].y) / 2)
+    lefts = {}
+    for p in placed:  # one column per depth
+        assert lefts.setdefault(p.depth, p.x) == p.x
+    assert overlapping([rect(p) for p in placed]) == []
 
 
-def svg_size(path: Path) -> tuple[float, float]:
-    svg = etree.parse(str(path)).getroot()
-    assert svg.tag.endswith("svg")
-    return tuple(float(svg.get(k).removesuffix("pt")) for k in ("width", "height"))
+@pytest.mark.parametrize("which", ["lab", "a320"])
+def test_full_layout_never_overlaps_and_boxes_hold_their_text(which, a320_root):
+    root = a320_root if which == "a320" else compile_mission(load_mission(LAB)).root
+    placed = layout(root)
+    assert len(placed) == sum(1 for _ in preorder(root))
+    assert overlapping([rect(p) for p in placed]) == []
+    if which == "a320":
+        return
+    # the estimated text sizes hold what matplotlib draws (every distinct label of the lab)
+    fig, drawn = tree_figure(root)
+    renderer = FigureCanvasAgg(fig).get_renderer()
+    seen = set()
+    for text, p in zip(fig.axes[0].texts, drawn, strict=True):
+        if p.label in seen:
+            continue
+        seen.add(p.label)
+        text.update_bbox_position_size(renderer)
+        extent = text.get_bbox_patch().get_window_extent(renderer)  # pixels
+        scale = 72.0 / fig.dpi
+        assert extent.width * scale <= p.width + 0.5, p.label
+        assert extent.height * scale <= p.height + 0.5, p.label
 
 
 def test_render_png_and_svg_read_back_and_grow_with_the_tree(tmp_path):
@@ -282,13 +338,20 @@ def test_render_png_and_svg_read_back_and_grow_with_the_tree(tmp_path):
         svg = render(root, tmp_path / f"t{branches}.svg")
         image = matplotlib.image.imread(png)
         assert image.ndim == 3 and image.shape[0] > 100
+        assert png_size(png) == (image.shape[1], image.shape[0])
         width, height = svg_size(svg)
         texts = "".join(etree.parse(str(svg)).getroot().itertext())
         assert "mission" in texts and "clear?" in texts  # text kept as text
         sizes.append((image.shape[1], image.shape[0], width, height))
-    (w_small, h_small, sw_small, _), (w_big, h_big, sw_big, _) = sizes
-    assert w_big > 2 * w_small and sw_big > 2 * sw_small  # 4x the branches
-    assert h_big == h_small  # same depth, same height
+    (w_small, h_small, _, sh_small), (w_big, h_big, _, sh_big) = sizes
+    assert h_big > 2.5 * h_small - 200 and sh_big > 2 * sh_small  # 4x the branches: rows
+    assert w_big == w_small  # same depth, same columns
+
+
+def svg_size(path: Path) -> tuple[float, float]:
+    svg = etree.parse(str(path)).getroot()
+    assert svg.tag.endswith("svg")
+    return tuple(float(svg.get(k).removesuffix("pt")) for k in ("width", "height"))
 
 
 def test_render_draws_any_name(tmp_path):
@@ -303,19 +366,73 @@ def test_render_wants_png_or_svg(tmp_path):
         render(small_tree(), tmp_path / "tree.jpg")
 
 
+@pytest.mark.parametrize("which", ["lab", "a320"])
+def test_overview_folds_navigations_and_checkpoints_and_fits_a_screen(which, a320, tmp_path):
+    compiled = a320 if which == "a320" else compile_mission(load_mission(LAB))
+    root = compiled.root
+    view = overview(root)
+    total = sum(1 for _ in preorder(root))
+    folded = {n.name for n in view.folded}
+    assert {f"checkpoint {cp.id}" for cp in compiled.mission.checkpoints} <= folded
+    # every navigation outside a checkpoint is folded, but one: the example, in full
+    example = view.example
+    assert example is not None and example.name.startswith("navigate ")
+    assert isinstance(example.children[-1], GuardSelector)
+    legs = [
+        n
+        for n, _ in preorder(root)
+        if n.name.startswith("navigate ") and not any(n in list(c.iterate()) for c in view.folded)
+    ]
+    assert legs and [n for n in legs if n.name not in folded] == [example]
+    placed = layout(root, folded=view.folded, notes={id(example): "example"})
+    assert len(placed) <= {"lab": 75, "a320": 100}[which]  # of 230 and 1562
+    assert len(placed) + sum(p.hidden for p in placed) == total  # nothing lost
+    assert sum(1 for p in placed if p.hidden) == len(view.folded)
+    assert any("example" in p.label for p in placed if p.node is example)
+    png = render(root, tmp_path / "overview.png", folded=view.folded)
+    width, height = png_size(png)
+    assert 800 < width <= 4000 and height <= 4000
+    # what is drawn: no two boxes overlap (their extents as matplotlib draws them)
+    fig, drawn = tree_figure(root, folded=view.folded)
+    renderer = FigureCanvasAgg(fig).get_renderer()
+    boxes = []
+    for text in fig.axes[0].texts:
+        text.update_bbox_position_size(renderer)
+        e = text.get_bbox_patch().get_window_extent(renderer)
+        boxes.append((e.x0, e.y0, e.x1, e.y1))
+    assert len(boxes) == len(drawn) and overlapping(boxes) == []
+
+
+@pytest.mark.filterwarnings("ignore:.*deprecated:DeprecationWarning")  # pydot's pyparsing use
+def test_dot_overview_folds_the_same_branches():
+    root = compile_mission(load_mission(LAB)).root
+    view = overview(root)
+    text = to_dot(root, folded=view.folded, rankdir="LR")
+    assert "rankdir=LR" in text
+    lines = text.splitlines()
+    node_lines = [m for m in map(NODE_LINE.match, lines) if m]
+    edge_lines = [m for m in map(EDGE_LINE.match, lines) if m]
+    shown = len(layout(root, folded=view.folded))
+    assert len(node_lines) == shown and len(edge_lines) == shown - 1
+    assert sum("penwidth=2.4" in m.group(2) for m in node_lines) == len(view.folded)
+    (graph,) = pydot.graph_from_dot_data(text)
+    assert len(graph.get_edges()) == shown - 1
+    with pytest.raises(ValueError, match="rankdir"):
+        to_dot(root, rankdir="up")
+
+
 @pytest.mark.slow
-def test_render_a320_is_one_wide_legible_figure(a320_root, tmp_path):
-    leaves = sum(1 for n, _ in preorder(a320_root) if not n.children)
-    png = render(a320_root, tmp_path / "a320.png")
-    image = matplotlib.image.imread(png)
-    height, width = image.shape[:2]
-    # 100 dpi and 1.25 in a leaf: the text keeps its size however big the tree, up to
-    # Agg's 65536-pixel side (the A320 with its servo branches: ~990 leaves), where the
-    # PNG's resolution is lowered and the figure stays as wide as a PNG can be
-    assert width >= min(leaves * 100, 65000) and width <= 65536
-    assert width > 20 * height
-    svg_w, _ = svg_size(render(a320_root, tmp_path / "a320.svg"))
-    assert svg_w >= leaves * 1.25 * 72
+def test_render_full_a320_is_complete_and_a_column_of_rows(a320_root, tmp_path):
+    svg = render(a320_root, tmp_path / "a320.svg")
+    width, height = svg_size(svg)
+    nodes = list(preorder(a320_root))
+    assert width < 30 * 72 and height > 20 * width  # ~2000 px wide at 100 dpi
+    texts = [t for t in etree.parse(str(svg)).getroot().iter("{*}text")]
+    names = Counter("".join(t.itertext()).split("\n")[0][2:] for t in texts)
+    # every behaviour drawn (its first line: marker, space, name; long names wrap)
+    short = Counter(_one_line(n.name) for n, _ in nodes if len(n.name) <= 40)
+    assert all(names[name] >= count for name, count in short.items())
+    assert len(texts) >= len(nodes)
 
 
 # -- BehaviorTree.CPP v4 ------------------------------------------------------------------------
@@ -337,16 +454,42 @@ def elements(element):
     return [c for c in element if isinstance(c.tag, str)]
 
 
-def parse_btcpp(text: str):
+def btcpp_trees(text: str) -> tuple[dict[str, etree._Element], etree._Element]:
+    """``{tree ID: its root element}`` (the main tree first) and the ``<TreeNodesModel>``,
+    checked as BT.CPP checks them: one child per ``<BehaviorTree>``, IDs unique, every
+    ``<SubTree>`` childless and naming a defined tree."""
     document = etree.fromstring(text.encode())
     assert document.tag == "root"
     assert document.get("BTCPP_format") == "4"
     trees = document.findall("BehaviorTree")
-    assert len(trees) == 1 and trees[0].get("ID") == document.get("main_tree_to_execute")
-    assert len(elements(trees[0])) == 1
+    assert trees and trees[0].get("ID") == document.get("main_tree_to_execute")
+    ids = [tree.get("ID") for tree in trees]
+    assert len(set(ids)) == len(ids)
+    for tree in trees:
+        assert len(elements(tree)) == 1
+        assert MODEL_NAME.match(tree.get("ID")), tree.get("ID")
+    for reference in document.iter("SubTree"):
+        assert reference.get("ID") in ids and not elements(reference)
     models = document.findall("TreeNodesModel")
     assert len(models) == 1
-    return elements(trees[0])[0], models[0]
+    return {tree.get("ID"): elements(tree)[0] for tree in trees}, models[0]
+
+
+def expand(element, trees):
+    """A copy of ``element`` with every ``<SubTree>`` replaced by the tree it names."""
+    if element.tag == "SubTree":
+        return expand(trees[element.get("ID")], trees)
+    copy = etree.Element(element.tag, dict(element.attrib))
+    copy.text = element.text
+    for child in element:
+        copy.append(expand(child, trees) if isinstance(child.tag, str) else deepcopy(child))
+    return copy
+
+
+def parse_btcpp(text: str):
+    """The main tree with its subtrees expanded, and the ``<TreeNodesModel>``."""
+    trees, model = btcpp_trees(text)
+    return expand(next(iter(trees.values())), trees), model
 
 
 def xml_preorder(element, depth=0, skip=()):
@@ -359,6 +502,7 @@ def xml_preorder(element, depth=0, skip=()):
 
 
 PORT_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
+MODEL_NAME = re.compile(r"^[^\s<>&\"'/\\:*?|.]+$")  # BT.CPP's findForbiddenChar
 
 
 @pytest.mark.parametrize("which", ["small", "nasty", "a320"])
@@ -504,6 +648,98 @@ def test_btcpp_decorators_and_renamed_builtins():
     assert {entry.get("ID") for entry in model} == {"Clear", "WalkaroundSleep"}
 
 
+def c14n(element) -> bytes:
+    """Canonical XML of ``element``, without the pretty-printer's whitespace."""
+    element = deepcopy(element)
+    for e in element.iter():
+        if e.text is not None and not e.text.strip():
+            e.text = None
+        e.tail = None
+    return etree.tostring(element, method="c14n")
+
+
+def signature(element) -> tuple:
+    return (element.tag, tuple(sorted(element.attrib.items())))
+
+
+def test_btcpp_subtrees_one_per_navigation_and_checkpoint(a320):
+    root = a320.root
+    text = to_btcpp(root)
+    trees, model = btcpp_trees(text)
+    main_id, *sub_ids = trees
+    assert main_id == "MainTree"
+    checkpoints = {f"Checkpoint_{cp.id}" for cp in a320.mission.checkpoints}
+    navigations = [n for n, _ in preorder(root) if n.name.startswith("navigate ")]
+    assert checkpoints <= set(sub_ids)
+    assert {i for i in sub_ids if i.startswith("Navigate_")} == {
+        "Navigate_" + re.sub(r"[^A-Za-z0-9_-]+", "_", n.name[9:]).strip("_") for n in navigations
+    }
+    assert len(sub_ids) == len(checkpoints) + len(navigations)
+    # each subtree is referenced once, under the name of the branch it holds
+    document = etree.fromstring(text.encode())
+    references = list(document.iter("SubTree"))
+    assert sorted(r.get("ID") for r in references) == sorted(sub_ids)
+    for reference in references:
+        assert reference.get("_autoremap") == "true"
+        assert trees[reference.get("ID")].get("name") == reference.get("name")
+    # a checkpoint's navigations are subtrees of its subtree: the main tree shows phases
+    main = document.find("BehaviorTree")
+    in_main = {r.get("ID") for r in main.iter("SubTree")}
+    assert in_main >= checkpoints and not in_main & {
+        f"Navigate_{cp.id}" for cp in a320.mission.checkpoints
+    }
+    assert 60 <= sum(1 for _ in main.iter()) <= 120  # ~1560 behaviours flat
+    assert len(c14n(main)) < 12_000 < len(text) / 20
+    # expanded, it is the flat export again, node for node and attribute for attribute
+    flat_trees, flat_model = btcpp_trees(to_btcpp(root, subtrees=None))
+    assert list(flat_trees) == ["MainTree"]
+    expanded = expand(trees[main_id], trees)
+    assert c14n(expanded) == c14n(flat_trees["MainTree"])
+    assert Counter(map(signature, expanded.iter())) == Counter(
+        map(signature, flat_trees["MainTree"].iter())
+    )
+    assert c14n(model) == c14n(flat_model)  # every custom node type, declared the same
+
+
+def test_btcpp_subtrees_with_an_operator_and_runnable_parallel(a320_path):
+    compiled = compile_mission(load_mission(a320_path), CompileOptions(ask_operator=True))
+    text = to_btcpp(compiled.root, keep_running_unselected=True)
+    trees, _ = btcpp_trees(text)
+    checkpoint = trees["Checkpoint_CP01"]
+    assert checkpoint.get("name") == "checkpoint CP01 or skip"
+    assert not any(e.get("ID", "").startswith("Checkpoint_") for e in checkpoint.iter("SubTree"))
+    assert {e.get("ID") for e in checkpoint.iter("SubTree")} >= {"Navigate_CP01"}
+    main = trees["MainTree"]
+    assert main.tag == "Parallel" and elements(main)[0].tag == "KeepRunningUntilFailure"
+    flat, _ = btcpp_trees(to_btcpp(compiled.root, keep_running_unselected=True, subtrees=None))
+    assert c14n(expand(main, trees)) == c14n(flat["MainTree"])
+
+
+def test_btcpp_subtree_ids_are_unique_and_avoid_node_types():
+    class Checkpoint_A(Controller):  # noqa: N801 - a class named like a subtree
+        writes = (COMMAND,)
+
+        def update(self) -> Status:
+            return Status.RUNNING
+
+    def leg(name):
+        return Sequence(name, memory=False, children=[Checkpoint_A("x"), Mark("m")])
+
+    root = Sequence(
+        "s",
+        memory=True,
+        children=[leg("checkpoint A"), leg("navigate a/b"), leg("navigate a.b"), Mark("plain")],
+    )
+    trees, model = btcpp_trees(to_btcpp(root))
+    assert list(trees) == ["MainTree", "Checkpoint_A_2", "Navigate_a_b", "Navigate_a_b_2"]
+    assert {entry.get("ID") for entry in model} == {"Checkpoint_A", "Mark"}
+    assert [e.get("name") for e in trees.values()][1:] == [
+        "checkpoint A",
+        "navigate a/b",
+        "navigate a.b",
+    ]
+
+
 # -- a real consumer: py_trees' BehaviorTree.CPP XML parser ---------------------------------------
 # py_trees 2.6 ships py_trees.parsers.behaviour_tree_xml.parse_behaviour_tree_xml. It knows
 # the composites <Sequence>, <Selector>/<Fallback> (attribute memory="true|false", default
@@ -619,31 +855,50 @@ def same_kind(ours, theirs) -> bool:
     return type(theirs).__name__ == type(ours).__name__ and theirs.category == category
 
 
-def assert_same_tree(ours, theirs, prefix=""):
-    """Same names (theirs carry their parents' as a prefix), kinds, memory, order, depth."""
-    assert theirs.name == prefix + ours.name
+def assert_same_tree(ours, theirs, prefix="", subtrees=frozenset()):
+    """Same names (theirs carry their parents' as a prefix, and a subtree's root its
+    <SubTree name> before its own), kinds, memory, order, depth."""
+    own = ours.name + "." + ours.name if ours.name in subtrees else ours.name
+    assert theirs.name == prefix + own
     assert same_kind(ours, theirs), (ours, theirs)
     assert len(theirs.children) == len(ours.children), ours.name
     for mine, parsed in zip(ours.children, theirs.children, strict=True):
-        assert_same_tree(mine, parsed, theirs.name + ".")
+        assert_same_tree(mine, parsed, theirs.name + ".", subtrees)
 
 
-def test_py_trees_parser_loads_the_a320_export(a320_root, tmp_path):
-    text = to_btcpp(a320_root)
+def namespaced(node, subtrees, namespace="/"):
+    """``(node, blackboard namespace)`` in pre-order, as py_trees' parser scopes them: one
+    namespace per <SubTree> instance, named after it (it has no ``_autoremap``)."""
+    if node.name in subtrees:
+        namespace = namespace.rstrip("/") + "/" + node.name
+    yield node, namespace
+    for child in node.children:
+        yield from namespaced(child, subtrees, namespace)
+
+
+@pytest.mark.parametrize("split", ["subtrees", "flat"])
+def test_py_trees_parser_loads_the_a320_export(a320_root, tmp_path, split):
+    text = to_btcpp(a320_root, subtrees=mission_subtree_id if split == "subtrees" else None)
     parsed = load_with_py_trees(text, tmp_path)
-    assert_same_tree(a320_root, parsed)
+    subtrees = {e.get("name") for e in etree.fromstring(text.encode()).iter("SubTree")}
+    branches = [n for n, _ in preorder(a320_root) if mission_subtree_id(n)]
+    assert len(subtrees) == (len(branches) if split == "subtrees" else 0) and len(branches) > 70
+    assert_same_tree(a320_root, parsed, subtrees=subtrees)
     assert len(list(parsed.iterate())) == len(list(a320_root.iterate()))
-    # ports: blackboard ones land on the shared entries, parameters carry their values
+    # ports: blackboard ones land on the shared entries (with BT.CPP's _autoremap; the
+    # py_trees parser puts a subtree's in its namespace), parameters carry their values
     top, _ = parse_btcpp(text)
     exported = [e for e, _ in xml_preorder(top)]
-    for element, (node, _) in zip(exported, preorder(parsed), strict=True):
+    walked = zip(exported, preorder(parsed), namespaced(a320_root, subtrees), strict=True)
+    for element, (node, _), (_, namespace) in walked:
         if not isinstance(node, PortsMixin):
             continue
         for attribute, value in element.attrib.items():
             if attribute == "name":
                 continue
             if value.startswith("{"):
-                assert node._get_blackboard_key(attribute) == "/" + value[1:-1]
+                key = namespace.rstrip("/") + "/" + value[1:-1]
+                assert node._get_blackboard_key(attribute) == key
             else:
                 assert node.get_input(attribute) == value
 

@@ -64,17 +64,27 @@ def add_campaign_command(sub: argparse._SubParsersAction) -> None:
         "campaign", metavar="CAMPAIGN.xml", help="campaign file (or 'merge' or 'report', see above)"
     )
     campaign.add_argument("paths", nargs="*", type=Path, help=argparse.SUPPRESS)
-    campaign.add_argument("--out", type=Path, default=None, help="results folder")
     campaign.add_argument(
-        "--episodes", type=int, default=None, help="episodes 0..N-1 (default: the file's)"
+        "--out", type=Path, default=None, help="results folder (no default: required to run)"
     )
-    campaign.add_argument("--seed", type=int, default=None, help="override the campaign seed")
+    campaign.add_argument(
+        "--episodes",
+        type=int,
+        default=None,
+        help="episodes 0..N-1, N 0 or more (default: the file's)",
+    )
+    campaign.add_argument(
+        "--seed",
+        type=int,
+        default=None,
+        help=f"override the campaign seed, 0 to {SEED_MAX} (default: the file's)",
+    )
     campaign.add_argument(
         "--jobs",
         type=int,
         default=1,
-        help="worker processes (default 1); with --backend ray, the CPUs of the Ray instance "
-        "started here (a running cluster uses all of its CPUs)",
+        help="worker processes, 1 or more (default 1); with --backend ray, the CPUs of the "
+        "Ray instance started here (a running cluster uses all of its CPUs)",
     )
     campaign.add_argument(
         "--backend",
@@ -91,26 +101,37 @@ def add_campaign_command(sub: argparse._SubParsersAction) -> None:
         help="with --backend ray: the address of a running Ray cluster (default $RAY_ADDRESS)",
     )
     campaign.add_argument(
-        "--shard", default=None, metavar="i/k", help="run only the episodes with index %% k == i"
+        "--shard",
+        default=None,
+        metavar="i/k",
+        help="run only the episodes with index %% k == i, 0 <= i < k (default: every episode)",
     )
     campaign.add_argument(
         "--resume", action="store_true", help="skip the episodes already in OUT/results.jsonl"
     )
     campaign.add_argument(
-        "--max-time", type=float, default=None, metavar="S", help="end each episode after S s"
+        "--max-time",
+        type=float,
+        default=None,
+        metavar="S",
+        help="end each episode after S simulated s, more than 0 (default: its duration)",
     )
     campaign.add_argument("--quiet", action="store_true", help="no progress bar")
     campaign.add_argument(
-        "--episode", type=int, default=None, metavar="N", help="with --export-scenario"
+        "--episode",
+        type=int,
+        default=None,
+        metavar="N",
+        help="with --export-scenario: the episode, 0 or more (no default: required there)",
     )
     campaign.add_argument(
         "--export-scenario",
         type=Path,
         default=None,
         metavar="FILE",
-        help="write episode N's scenario file (rerun it with 'walkaround dry-run MISSION "
-        "--scenario FILE'); it must lie in the mission library, e.g. beside the mission's "
-        "scenarios",
+        help="write episode N's scenario file instead of running (default: run; rerun it "
+        "with 'walkaround dry-run MISSION --scenario FILE'); it must lie in the mission "
+        "library, e.g. beside the mission's scenarios",
     )
     campaign.set_defaults(handler=cmd_campaign)
 
