@@ -809,6 +809,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_campaign_command(sub)
 
+    from executive.planning.cli import add_plan_command
+
+    add_plan_command(sub)
+
     from executive.cli_new import add_new_command
 
     add_new_command(sub)
