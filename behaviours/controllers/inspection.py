@@ -17,7 +17,7 @@ import py_trees
 from behaviours.base import Controller, Node
 from behaviours.keys import COMMAND, POSE, PROGRESS, SENSOR_FRAME, ItemResult, MissionProgress
 from behaviours.laws.freshness import Freshness
-from executive.core.frames import aircraft_from_robot, pan_tilt_towards, wrap_angle
+from executive.core.frames import aircraft_from_robot, pan_tilt_towards
 from executive.core.model import Aircraft, CameraSpec
 from executive.core.records import PanTiltRate, PoseEstimate, SensorFrame, VelocityCommand
 
@@ -138,7 +138,10 @@ class InspectItems(Controller):
         rate = PanTiltRate()
         if pose is not None and angles is not None:
             pan_goal, tilt_goal = self._aim(pose, item)
-            e_pan, e_tilt = wrap_angle(pan_goal - angles.pan), tilt_goal - angles.tilt
+            # the goal is within the unit's limits and so is its pan: the straight
+            # difference is the way that stays inside them (the short way round could
+            # push against a limit of a +-180 deg unit for ever)
+            e_pan, e_tilt = pan_goal - angles.pan, tilt_goal - angles.tilt
             aimed = abs(e_pan) < self.aim_tolerance and abs(e_tilt) < self.aim_tolerance
             if aimed and self._aimed_at is None:
                 self._aimed_at, self._was_aimed = now, True
