@@ -28,13 +28,13 @@ image at the camera's rate.
 from __future__ import annotations
 
 import math
-from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
 
 from behaviours.laws.ceiling_landmarks import CeilingLocaliser, law_camera_for
 from behaviours.laws.localisation import CHI2_999, PoseFilter
+from behaviours.sensing.pose_history import PoseHistory
 from executive.core.frames import Pose2, wrap_angle
 from executive.core.model import CeilingCameraSpec
 from executive.core.records import CeilingImage
@@ -90,22 +90,18 @@ class CeilingFixer:
     def __init__(self, localiser: CeilingLocaliser, policy: CeilingFixPolicy | None = None) -> None:
         self.localiser = localiser
         self.policy = policy or CeilingFixPolicy()
-        self._poses: deque[tuple[float, Pose2]] = deque()
+        self._history = PoseHistory(self.policy.history)
         self._stamp: float | None = None
         self.counts = {"images": 0, "accepted": 0, "rejected": 0, "no-fix": 0, "stale": 0}
         self.last_fix: Pose2 | None = None
 
     def record_pose(self, stamp: float, pose_a: Pose2) -> None:
         """Remember the filter's pose at ``stamp`` (call after every prediction)."""
-        poses = self._poses
-        poses.append((stamp, pose_a))
-        while poses and poses[0][0] < stamp - self.policy.history:
-            poses.popleft()
+        self._history.record(stamp, pose_a)
 
     def _pose_at(self, stamp: float, default: Pose2) -> Pose2:
-        if not self._poses:
-            return default
-        return min(self._poses, key=lambda sp: abs(sp[0] - stamp))[1]
+        """The filter's pose at ``stamp`` (nearest kept sample; ``default`` if none)."""
+        return self._history.at(stamp, default)
 
     def step(self, now: float, image: CeilingImage | None, pose_filter: PoseFilter) -> bool:
         """Use ``image`` if it is new; returns whether a fix was fused into the filter."""

@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import math
 import weakref
-from collections import deque
 from collections.abc import Mapping
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
@@ -50,6 +49,7 @@ from behaviours.laws.registration import (
     refine,
     register,
 )
+from behaviours.sensing.pose_history import PoseHistory
 from executive.core.frames import Pose2, moved_in_aircraft
 from executive.core.model import Aircraft, LaserSpec
 from executive.core.records import FrameReference, RegistrationRecord, SensorFrame
@@ -117,7 +117,7 @@ class AircraftRegistrar:
                 for k in range(len(model.elements))
             ]
         )
-        self._poses: deque[tuple[float, Pose2]] = deque()
+        self._history = PoseHistory(self.policy.history)
         self._stamps: tuple[float, ...] = ()
         self._last_global = -math.inf
         self._last_track = -math.inf
@@ -141,16 +141,11 @@ class AircraftRegistrar:
     # -- bookkeeping ---------------------------------------------------------------------
     def record_pose(self, stamp: float, pose_a: Pose2) -> None:
         """Remember the filter's pose at ``stamp`` (call after every prediction)."""
-        poses = self._poses
-        poses.append((stamp, pose_a))
-        while poses and poses[0][0] < stamp - self.policy.history:
-            poses.popleft()
+        self._history.record(stamp, pose_a)
 
     def _pose_at(self, stamp: float, default: Pose2) -> Pose2:
         """The filter's pose at ``stamp`` (nearest kept sample; ``default`` if none)."""
-        if not self._poses:
-            return default
-        return min(self._poses, key=lambda sp: abs(sp[0] - stamp))[1]
+        return self._history.at(stamp, default)
 
     def in_view(self, pose_f: Pose2) -> bool:
         d = np.hypot(self._elements[:, 0] - pose_f.x, self._elements[:, 1] - pose_f.y)
