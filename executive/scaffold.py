@@ -99,16 +99,17 @@ LIBRARY_FOLDERS = ("robots", "campaigns")
 
 
 def library_xml_files(library: Path) -> list[Path]:
-    """The XML files of a library, sorted: each type folder's (``TYPE/*.xml`` and
-    ``TYPE/scenarios/*.xml``, a type folder being one with an aircraft.xml) and those of
-    robots/ and campaigns/. The shipped library has no other; in a folder that became a
-    library by holding a type (a home folder after ``walkaround new``), nothing else of
-    it is read."""
+    """The XML files of a library, sorted: each type folder's (``TYPE/*.xml``,
+    ``TYPE/scenarios/*.xml`` and the taught routes' files under ``TYPE/routes/``, a type
+    folder being one with an aircraft.xml) and those of robots/ and campaigns/. The
+    shipped library has no other; in a folder that became a library by holding a type (a
+    home folder after ``walkaround new``), nothing else of it is read."""
     files: list[Path] = []
     for folder in sorted(p for p in library.iterdir() if p.is_dir()):
         if (folder / "aircraft.xml").is_file():
             files += folder.glob("*.xml")
             files += (folder / "scenarios").glob("*.xml")
+            files += (folder / "routes").rglob("*.xml")
         elif folder.name in LIBRARY_FOLDERS:
             files += folder.glob("*.xml")
     return sorted(p for p in files if p.is_file() or p.is_symlink())

@@ -12,9 +12,9 @@ wheel odometry, eq. 2.1-2.2, as the prior); each image's fix and the landmarks i
 (those it matched and those it created) make the recording from which
 :func:`~behaviours.laws.routes.select_key_images` keeps the key images (§2.3). Written
 to ``--out``: ``mosaic.npz`` (:mod:`behaviours.laws.mosaic`), ``route.xml``
-(``schemas/route.xsd``; validated as written), ``keys/<id>.png`` and
-``taught-path.csv``, the simulator's true trajectory of the teaching run (t, x, y, theta
-in A), the ground truth a repeat is judged against.
+(``schemas/route.xsd``; validated as written), ``keys/<id>.png`` (not with
+``--no-key-images``) and ``taught-path.csv``, the simulator's true trajectory of the
+teaching run (t, x, y, theta in A), the ground truth a repeat is judged against.
 
 The path file: one waypoint ``x y`` (metres in A) per line; ``#`` starts a comment. The
 path starts at the scenario's start pose; its first leg leaves in the start heading's
