@@ -16,7 +16,11 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from behaviours.controllers.servo import servo_cameras
+from behaviours.laws.augmented_image import MIN_REAL_POINTS
+from executive import compiler
 from executive.cli import main
+from executive.compiler import CompileOptions, compile_mission
 from executive.core import checks
 from executive.core.frames import (
     Pose2,
@@ -25,7 +29,8 @@ from executive.core.frames import (
     robot_from_camera,
 )
 from executive.core.loader import load_aircraft, load_mission
-from executive.core.model import Frame
+from executive.core.model import CameraKind, Frame
+from executive.planning import targets
 from executive.planning.candidates import (
     IMAGE_MARGIN,
     candidate_views,
@@ -47,6 +52,7 @@ from executive.planning.space import free_space
 from executive.planning.tour import nearest_neighbour, tour_length, two_opt
 from executive.planning.write import write_mission
 from tests.conftest import MISSIONS
+from tests.sim2d_helpers import assert_finished_by_servoing
 
 TEMPLATES = {"lab": "visual-servoing.xml", "a320": "preflight.xml", "b737-800": "preflight.xml"}
 REASONS = (
@@ -129,6 +135,87 @@ def test_lab_draft_dry_run_inspects_every_item(tmp_path):
     assert detected == set(draft.aircraft.items)
     for cp in run.checkpoints:
         assert cp.reached and cp.items == cp.detected
+
+
+@pytest.mark.parametrize("kind", list(TEMPLATES))
+def test_draft_servo_targets_are_drivable_and_dwell_is_the_templates(kind, tmp_path):
+    """Issue 18: a drafted checkpoint names, where one exists, a servo unit and target that
+    the compiler's servo session can drive to (no bearing-only warning), the method the
+    aircraft file gives the feature, and the template's dwell at its items."""
+    _, draft, template = _draft(kind, tmp_path)
+    targeted = [cp for cp in draft.checkpoints if cp.target is not None]
+    assert len(targeted) * 2 >= len(draft.checkpoints), [cp.id for cp in targeted]
+    compiled = compile_mission(draft, CompileOptions(servo=True))
+    assert not [w for w in compiled.warnings if w.code == "servo-bearing-only"]
+    sessions = {s.checkpoint: s for s in compiled.servo_sessions}
+    assert set(sessions) == {cp.id for cp in targeted}
+    for cp in targeted:
+        feature = draft.aircraft.features[cp.target]
+        assert draft.platform.cameras[cp.camera].kind is not CameraKind.PTZ, cp.id
+        assert cp.servo is feature.servo, cp.id
+        assert sessions[cp.id].drivable, cp.id
+        cams = servo_cameras(draft.platform, feature, cp.pose, draft.aircraft.origin_height)
+        assert any(c.reachable and c.unit.id == cp.camera for c in cams), cp.id
+        assert len(feature.points) >= MIN_REAL_POINTS
+    # the comments say which target and why, or why none
+    text = " ".join((tmp_path / kind / "draft.xml").read_text().split())  # comments wrap
+    for cp in draft.checkpoints:
+        assert (f"servo target '{cp.target}'" if cp.target else "no servo target:") in text
+    # dwell: the template's longest at the checkpoint's items (the same item ids here)
+    by_item: dict[str, float] = {}
+    for cp in template.checkpoints:
+        for item in cp.items:
+            by_item[item] = cp.dwell
+    for cp in draft.checkpoints:
+        assert cp.dwell == max(by_item[i] for i in cp.items) > 0, cp.id
+    # --dwell sets it everywhere
+    fixed = plan_mission(template, draft.aircraft, dwell=2.5)
+    assert {p.checkpoint.dwell for p in fixed.checkpoints} == {2.5}
+
+
+def test_servo_start_is_the_compilers():
+    assert targets.SERVO_START == compiler.SERVO_START
+
+
+def test_template_dwell_falls_back_to_the_median():
+    template = load_mission(MISSIONS / "a320" / "preflight.xml")
+    dwells = sorted(cp.dwell for cp in template.checkpoints)
+    assert targets.template_dwell(template, ["not-an-a320-item"]) == dwells[len(dwells) // 2]
+
+
+def _assert_draft_dry_run(kind: str, folder: Path) -> None:
+    """The acceptance of issue 18: the draft's dry-run on the clear apron completes with
+    every item inspected, no collision or breach, every checkpoint within its tolerance,
+    and the checkpoints with a servo target finished by visual servoing (2 cm, 0.5 deg)."""
+    from executive.dryrun import dry_run
+    from sim2d.scenario import load_scenario
+
+    _, draft, _ = _draft(kind, folder)
+    scenario = load_scenario(MISSIONS / kind / "scenarios" / "clear-apron.xml")
+    run = dry_run(dataclasses.replace(scenario, mission=draft))
+    assert run.result.outcome == "completed", (run.result.reason, run.first_cause)
+    assert not run.robot.truth.collisions
+    assert not run.breaches
+    tolerance = draft.navigation
+    for cp, outcome in zip(draft.checkpoints, run.checkpoints, strict=True):
+        assert outcome.reached, cp.id
+        assert outcome.position_error <= tolerance.position_tolerance, (cp.id, outcome)
+        assert outcome.heading_error_deg <= math.degrees(tolerance.heading_tolerance), cp.id
+        assert outcome.items == len(cp.items), cp.id
+    detected = {r.item for r in run.result.progress.results if r.detected}
+    assert detected == set(draft.aircraft.items)
+    servoed = assert_finished_by_servoing(run)
+    assert servoed == [cp.id for cp in draft.checkpoints if cp.target is not None]
+
+
+@pytest.mark.slow
+def test_a320_draft_dry_run_inspects_every_item(tmp_path):
+    _assert_draft_dry_run("a320", tmp_path)
+
+
+@pytest.mark.slow
+def test_b737_draft_dry_run_inspects_every_item(tmp_path):
+    _assert_draft_dry_run("b737-800", tmp_path)
 
 
 # -- the pieces ------------------------------------------------------------------------------

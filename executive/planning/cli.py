@@ -68,8 +68,11 @@ def add_plan_command(sub: argparse._SubParsersAction) -> None:
         "cover); a short tour through them round the footprint and the zones (nearest "
         "neighbour + 2-opt on shortest clear paths, via points where a straight leg would "
         "not keep its clearance), in the direction that follows the aircraft file's item "
-        "order; the handover point and the return. The robot, safety radii, navigation and "
-        "forbidden zones come from a template mission (--like). The draft is validated "
+        "order; the handover point and the return; on each checkpoint, where one exists, the "
+        "servo camera and target visual servoing reaches it on (a feature a stereo or mono "
+        "unit sees with enough points from it), and the template's dwell. The robot, safety "
+        "radii, navigation and forbidden zones come from a template mission (--like). The "
+        "draft is validated "
         "before the command ends; comments in it say why each checkpoint is where it is. "
         "Exit 0 when every item is covered, 1 when some are not (listed with the reason), "
         "2 on bad input.",
@@ -101,9 +104,10 @@ def add_plan_command(sub: argparse._SubParsersAction) -> None:
     plan.add_argument(
         "--dwell",
         type=float,
-        default=0.0,
+        default=None,
         metavar="S",
-        help="seconds to stand still at each checkpoint after its items, 0 to 600 (default 0)",
+        help="seconds to stand still at each checkpoint after its items, 0 to 600 (default: "
+        "the template's longest dwell at the checkpoint's items, else its median dwell)",
     )
     plan.set_defaults(handler=cmd_plan)
 
@@ -131,7 +135,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
         parking = parse_pose(args.parking, need_heading=True)
         if parking is None:
             return _bad(f"--parking wants X,Y,HEADING_DEG in metres, got '{args.parking}'")
-    if not (math.isfinite(args.dwell) and 0.0 <= args.dwell <= 600.0):
+    if args.dwell is not None and not (math.isfinite(args.dwell) and 0.0 <= args.dwell <= 600.0):
         return _bad(f"--dwell wants seconds in 0..600, got {args.dwell:g}")
     if not args.out.parent.resolve().is_dir():
         return _bad(f"--out: folder {args.out.parent} does not exist")

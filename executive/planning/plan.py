@@ -12,7 +12,9 @@ pose unless given) and returns a :class:`Plan`:
    airframe (the walk-around starts there, as the flight crew's does);
 4. a tour P -> checkpoints -> P round the footprint and the zones, via points where a
    straight leg would not keep its clearance (:mod:`executive.planning.tour`);
-5. every stop, leg and item checked with the validator's own functions
+5. on each checkpoint, where one exists, the servo camera unit and target that visual
+   servoing reaches it on, and the template's dwell (:mod:`executive.planning.targets`);
+6. every stop, leg, item and servo target checked with the validator's own functions
    (:mod:`executive.core.checks`): a plan that fails them is a planner bug and raises.
 
 Items no candidate sees, or that no clear path reaches, are listed with the reason.
@@ -50,6 +52,7 @@ from executive.planning.candidates import (
 )
 from executive.planning.cover import Cover, set_cover
 from executive.planning.space import FreeSpace, free_space
+from executive.planning.targets import choose_servo_target, template_dwell
 from executive.planning.tour import Roadmap, plan_tour, roadmap
 
 HANDOVER_STANDOFF = 5.0
@@ -335,6 +338,15 @@ def _verify(mission: Mission, placement_checks: bool = True) -> list[str]:
             )
             if reason:
                 problems.append(f"checkpoint '{cp.id}' item '{item}': {reason}")
+        if cp.target is not None and cp.camera is not None:
+            reason = checks.why_not_visible(
+                mission.platform.cameras[cp.camera],
+                mission.aircraft.features[cp.target],
+                cp.pose,
+                mission.aircraft.origin_height,
+            )
+            if reason:
+                problems.append(f"checkpoint '{cp.id}' servo target '{cp.target}': {reason}")
     for wp in (*mission.approach, *mission.return_route, mission.handover):
         problems += checks.clearance_problems(
             mission, placement, f"waypoint '{wp.id}'", wp.x, wp.y, wp.frame
@@ -351,9 +363,10 @@ def plan_mission(
     station: Pose2 | None = None,
     parking: Pose2 | None = None,
     mission_id: str | None = None,
-    dwell: float = 0.0,
+    dwell: float | None = None,
 ) -> Plan:
-    """Draft a mission for ``aircraft`` with ``template``'s robot and apron."""
+    """Draft a mission for ``aircraft`` with ``template``'s robot and apron. ``dwell``:
+    seconds at every checkpoint (None: the template's, :func:`template_dwell`)."""
     base = draft_base(template, aircraft, station, parking, mission_id)
     space = free_space(base)
     placement = space.placement
@@ -364,6 +377,7 @@ def plan_mission(
     uncovered = {views.items[c]: views.reasons.get(views.items[c], "") for c in cover.uncovered}
     unit = inspection_unit(base)
     named_camera = unit.id if unit.kind is not CameraKind.PTZ else None
+    template_items = {i for cp in template.checkpoints for i in cp.items}
 
     cps_xy = np.array([views.poses[r][:2] for r in cover.chosen]).reshape(-1, 2)
 
@@ -399,12 +413,18 @@ def plan_mission(
     order = [idx[k] for k in plan_tour(sub, rank)]
 
     planned: list[PlannedCheckpoint] = []
+    units = (named_camera,) if named_camera is not None else None
+    here = (float(hand_f[0]), float(hand_f[1]))  # where the robot comes from
     for n, k in enumerate(order[1:], start=1):
         row = cover.chosen[k - 1]
         items = [views.items[c] for c in cover.assigned[k - 1]]
         prev = order[n - 1]
         via = tuple(roads.corners(prev, k))
         for g, (pose, members, facing) in enumerate(_checkpoint_poses(space, views, row, items)):
+            came_from = via[-1] if via and g == 0 else here
+            target, target_why = choose_servo_target(space, pose, members, units, came_from)
+            here = (pose.x, pose.y)
+            cp_dwell = template_dwell(template, members) if dwell is None else dwell
             cols = [views.items.index(i) for i in members]
             distances = [float(views.distance[row, c]) for c in cols]
             why = [
@@ -422,6 +442,17 @@ def plan_mission(
                     )
                     + ": a straight leg would not keep its clearance"
                 )
+            why.append(target_why if target is not None else f"no servo target: {target_why}")
+            why.append(
+                f"dwell {cp_dwell:g} s "
+                + (
+                    "(as given)"
+                    if dwell is not None
+                    else "(the template's longest dwell at these items)"
+                    if any(i in template_items for i in members)
+                    else "(the template's median dwell)"
+                )
+            )
             names: list[str] = []
             for i in members:
                 f = aircraft.items[i].feature
@@ -432,8 +463,10 @@ def plan_mission(
                 name=", ".join(names[:3]) + (f" (+{len(names) - 3})" if len(names) > 3 else ""),
                 pose=pose,
                 items=tuple(members),
-                camera=named_camera,
-                dwell=dwell,
+                camera=target.camera if target is not None else named_camera,
+                target=target.feature if target is not None else None,
+                servo=target.method if target is not None else None,
+                dwell=cp_dwell,
                 via=tuple((round(x, 3), round(y, 3)) for x, y in via) if g == 0 else (),
             )
             planned.append(PlannedCheckpoint(checkpoint, tuple(why)))

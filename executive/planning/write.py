@@ -135,6 +135,10 @@ def mission_xml(plan: Plan, template_path: Path, aircraft_ref: str) -> str:
         attrs = f'id="{cp.id}" name={quoteattr(cp.name)} {_pose_attrs(cp.pose)}'
         if cp.camera:
             attrs += f' camera="{cp.camera}"'
+        if cp.target:
+            attrs += f' target="{cp.target}"'
+        if cp.servo is not None:
+            attrs += f' servo="{cp.servo.value}"'
         if cp.dwell > 0:
             attrs += f' dwell="{_num(cp.dwell)}"'
         body.append(f"    <checkpoint {attrs}>\n")
@@ -160,7 +164,9 @@ def _description(plan: Plan) -> str:
         f"Draft pre-flight walk-around of the {m.aircraft.type} by walkaround plan: "
         f"{len(plan.checkpoints)} checkpoints chosen by weighted set cover over "
         f"{plan.candidates} candidate poses, toured by nearest neighbour and 2-opt round the "
-        "footprint and the forbidden zones."
+        "footprint and the forbidden zones; "
+        f"{sum(1 for c in plan.checkpoints if c.checkpoint.target)} reached by visual "
+        "servoing on a target a servo camera sees from them."
     )
     if plan.uncovered:
         text += f" {len(plan.uncovered)} item(s) could not be covered (see the comment)."
