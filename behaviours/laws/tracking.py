@@ -76,7 +76,13 @@ standard deviation ``initial_speed_sigma``); ``confirm_hits`` assignments confir
 tentative track not seen for ``tentative_timeout`` or a confirmed one not seen for
 ``coast_time`` is deleted. Only confirmed tracks are reported, as
 :class:`executive.core.records.TrackedObstacle` in the robot frame R at the robot's pose
-of the scan: position in R, ground velocity in R's axes, covariance rotated into R.
+of the scan: position in R, ground velocity in R's axes, covariance rotated into R. A
+track's shape follows its state: a circle is centred on the tracked position, and a line
+(its ends from the last whole view) is moved by :func:`line_through` to pass through it.
+A segment left where it was last seen whole describes a ghost: a track last seen whole
+as a line, then followed as a blob to a walker standing 3.5 m away, kept its old segment
+behind the robot; avoidance found the ghost off the path and drove into the walker, and
+the e-stop held the robot there (avoidance campaign episode 254, issue 16).
 
 Danger level (:func:`danger_level`): NONE, NEAR (within r_OA-trigger of the footprint),
 ON_PATH (the obstacle's constant-velocity prediction comes within ``width / 2 + margin +
@@ -185,6 +191,20 @@ def _robot_motion(
     for a in (rx, ry, c, s):
         a.flags.writeable = False
     return rx, ry, c, s
+
+
+def line_through(ends: FloatArray, points: FloatArray) -> FloatArray:
+    """Each segment of ``ends`` (n x 4: x0, y0, x1, y1) translated so that its point
+    closest to ``points[i]`` (n x 2) is that point: a line track's last whole view moved
+    with the track. A segment through its point is unchanged; one of zero length (never
+    seen whole) becomes the point itself."""
+    a, b = ends[:, :2], ends[:, 2:]
+    d = b - a
+    length2 = np.einsum("ij,ij->i", d, d)
+    along = np.einsum("ij,ij->i", points - a, d) / np.where(length2 > 0.0, length2, 1.0)
+    closest = a + np.clip(along, 0.0, 1.0)[:, None] * d
+    shift = points - closest
+    return np.hstack((a + shift, b + shift))
 
 
 def danger_level(
@@ -643,7 +663,8 @@ class ObstacleTracker:
         )
         danger = danger_level(position, speed, size, clearance, *velocity, self.danger)
         kind = self.votes[out].argmax(axis=1)
-        ends = inv.apply(self.line[out].reshape(-1, 2)).reshape(-1, 4)
+        moved = line_through(self.line[out], self.state[out, :2])
+        ends = inv.apply(moved.reshape(-1, 2)).reshape(-1, 4)
         shapes = [
             (x, y, r) if k == CIRCLE else tuple(e) if k == LINE else ()
             for k, (x, y), r, e in zip(
