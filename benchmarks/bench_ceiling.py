@@ -41,7 +41,14 @@ from behaviours.laws.ceiling import localise
 from behaviours.laws.ceiling_landmarks import CeilingMapper, detect, law_camera_for
 from behaviours.laws.mosaic import load_mosaic, save_mosaic
 from executive.core.frames import Pose2, wrap_angle
-from sim2d.ceiling import CeilingSpec, CeilingTexture, UpwardCamera, render, walker
+from sim2d.ceiling import (
+    CeilingSpec,
+    CeilingTexture,
+    UpwardCamera,
+    render,
+    scripted_drive,
+    walker,
+)
 
 BUDGET_MS = 10.0
 """The issue's budget for one localisation step."""
@@ -49,22 +56,6 @@ HEIGHT = 10.0
 SPEC = CeilingSpec(x_max=30.0, y_max=20.0, height=HEIGHT, seed=3, repeated_tiles=4)
 CAMERA = UpwardCamera()
 PRIOR_OFFSET = Pose2(0.2, -0.1, math.radians(2.0))
-
-
-def loop(start: Pose2, legs: list[tuple[float, float]], step: float) -> list[Pose2]:
-    """Poses every ``step`` m along straight legs (length, turn before it); turns on the
-    spot in steps of at most 8 degrees."""
-    poses = [start]
-    x, y, th = start.x, start.y, start.theta
-    for length, turn in legs:
-        n = math.ceil(abs(turn) / math.radians(8.0))
-        for _ in range(n):
-            th += turn / n
-            poses.append(Pose2(x, y, th))
-        for _ in range(round(length / step)):
-            x, y = x + step * math.cos(th), y + step * math.sin(th)
-            poses.append(Pose2(x, y, th))
-    return poses
 
 
 def percentile(values: list[float], q: float) -> float:
@@ -85,7 +76,7 @@ def main(argv: list[str] | None = None) -> int:
 
     t0 = time.perf_counter()
     mapper = CeilingMapper(law_camera_for(CAMERA, HEIGHT))
-    mapping = loop(
+    mapping = scripted_drive(
         Pose2(5.0, 5.0, 0.0),
         [(20.0, 0.0), (10.0, math.pi / 2), (20.0, math.pi / 2), (10.0, math.pi / 2)],
         0.5,
@@ -103,7 +94,7 @@ def main(argv: list[str] | None = None) -> int:
 
     lamps = list(range(len(SPEC.lamp_centres())))
     off = {int(i) for i in rng.choice(lamps, size=round(0.3 * len(lamps)), replace=False)}
-    path_poses = loop(
+    path_poses = scripted_drive(
         Pose2(8.0, 7.0, 0.3), [(12.0, 0.0), (5.0, 2.0), (10.0, 1.5), (6.0, 1.2)], 0.25
     )
     step = max(1, len(path_poses) // args.images)

@@ -286,6 +286,23 @@ class Occluder(NamedTuple):
     height: float
 
 
+def scripted_drive(start: Pose2, legs: Sequence[tuple[float, float]], step: float) -> list[Pose2]:
+    """Poses of a scripted drive under the ceiling (mapping and localisation runs): every
+    ``step`` m along straight legs (length m, turn rad before it), the turns taken on the
+    spot in steps of at most 8 degrees (successive images share most of their view)."""
+    poses = [start]
+    x, y, th = start.x, start.y, start.theta
+    for length, turn in legs:
+        n = math.ceil(abs(turn) / math.radians(8.0))
+        for _ in range(n):
+            th += turn / n
+            poses.append(Pose2(x, y, th))
+        for _ in range(round(length / step)):
+            x, y = x + step * math.cos(th), y + step * math.sin(th)
+            poses.append(Pose2(x, y, th))
+    return poses
+
+
 def walker(x: float, y: float, *, stature: float = 1.75) -> tuple[Occluder, Occluder]:
     """A person standing at (x, y) seen from below: shoulders (a 0.23 m disc at 0.82 of
     ``stature``) and head (a 0.10 m disc at ``stature``), m."""

@@ -27,7 +27,14 @@ from behaviours.laws.ceiling_landmarks import (
     subpixel,
 )
 from executive.core.frames import Pose2, wrap_angle
-from sim2d.ceiling import CeilingSpec, CeilingTexture, UpwardCamera, render, walker
+from sim2d.ceiling import (
+    CeilingSpec,
+    CeilingTexture,
+    UpwardCamera,
+    render,
+    scripted_drive,
+    walker,
+)
 
 HEIGHT = 10.0  # m: a small hangar, 20 m x 14 m
 SPEC = CeilingSpec(x_max=20.0, y_max=14.0, height=HEIGHT, seed=3, repeated_tiles=4)
@@ -36,22 +43,6 @@ CAMERA = UpwardCamera()  # 640 x 480, 80 degrees, at the robot's centre, 0.6 m u
 
 def _errors(estimate: Pose2, truth: Pose2) -> tuple[float, float]:
     return estimate.distance_to(truth), abs(wrap_angle(estimate.theta - truth.theta))
-
-
-def _drive(start: Pose2, legs: list[tuple[float, float]], step: float) -> list[Pose2]:
-    """Poses every ``step`` m along straight legs (length, turn before it); turns are
-    taken on the spot in steps of at most 8 degrees."""
-    poses = [start]
-    x, y, th = start.x, start.y, start.theta
-    for length, turn in legs:
-        n = math.ceil(abs(turn) / math.radians(8.0))
-        for _ in range(n):
-            th += turn / n
-            poses.append(Pose2(x, y, th))
-        for _ in range(round(length / step)):
-            x, y = x + step * math.cos(th), y + step * math.sin(th)
-            poses.append(Pose2(x, y, th))
-    return poses
 
 
 def _odometry_prior(
@@ -79,7 +70,7 @@ class Mapped:
 def mapped() -> Mapped:
     """A 36 m loop with four 90-degree turns at 2 Hz and 1 m/s, grey noise 2."""
     texture = CeilingTexture(SPEC)
-    path = _drive(
+    path = scripted_drive(
         Pose2(4.0, 4.0, 0.0),
         [(12.0, 0.0), (6.0, math.pi / 2), (12.0, math.pi / 2), (6.0, math.pi / 2)],
         0.5,
@@ -167,7 +158,9 @@ def test_localisation_on_another_path_with_lamps_off_and_walker(mapped: Mapped) 
     rng = np.random.default_rng(7)
     lamps = len(mapped.texture.lamps)
     off = rng.choice(lamps, size=max(1, round(0.3 * lamps)), replace=False).tolist()
-    path = _drive(Pose2(5.0, 5.0, 0.5), [(5.0, 0.0), (4.0, -1.0), (4.0, 1.2), (3.0, 2.0)], 0.25)
+    path = scripted_drive(
+        Pose2(5.0, 5.0, 0.5), [(5.0, 0.0), (4.0, -1.0), (4.0, 1.2), (3.0, 2.0)], 0.25
+    )
     localiser = mapped.mapper.localiser()
     estimate = path[0]
     pos, head = [], []
