@@ -50,6 +50,7 @@ time. Options the executive cannot honour are reported with their file and line.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -122,6 +123,7 @@ from behaviours.keys import COMMAND, EXTERNAL_KEYS, MissionProgress
 from behaviours.laws.augmented_image import MIN_REAL_POINTS
 from behaviours.laws.go_to_goal import GoToGoalParams
 from behaviours.laws.mosaic import localiser_from
+from behaviours.laws.retreat import Retreat, covered_sides
 from behaviours.sensing.ceiling import CeilingFixer, camera_mismatch
 from behaviours.sensing.features import SenseFeatures
 from behaviours.sensing.localisation import Localise
@@ -434,7 +436,6 @@ class _Builder:
         aimed at that session's target (:class:`AimedGoToGoal`). ``checkpoint``: the
         navigation leads to that checkpoint, whose trap asks the operator when one is at
         hand (:attr:`CompileOptions.ask_operator`)."""
-        safety = self.mission.safety
         params = dataclasses.replace(
             self.params,
             position_tolerance=tolerance[0],
@@ -453,11 +454,7 @@ class _Builder:
         guards = GuardSelector(
             f"guards {label}",
             [
-                GuardedBranch(
-                    f"e-stop {label}",
-                    EmergencyStop(safety.r_es, safety.estop_hold, name="e-stop?"),
-                    EStopHold(),
-                ),
+                self.estop_branch(label),
                 *(
                     [
                         GuardedBranch(
@@ -493,6 +490,26 @@ class _Builder:
             return trap
         ask = AskWhenTrapped(trap, checkpoint, self.skips, name=f"ask operator {label}")
         return Selector(f"trapped {label}?", memory=False, children=[trap, ask])
+
+    @functools.cached_property
+    def retreat(self) -> Retreat:
+        """How this platform may back out of an obstacle e-stop (behaviours.laws.retreat)."""
+        m = self.mission
+        sides = covered_sides(
+            m.platform.lasers.values(),
+            m.platform.length,
+            m.platform.width,
+            m.safety.r_es,
+            m.safety.r_oa_trigger,
+        )
+        return Retreat(m.platform.length, m.platform.width, m.safety.r_es, sides)
+
+    def estop_branch(self, label: str) -> GuardedBranch:
+        """[e-stop?] -> emergency stop, which backs out of an obstacle latch where the
+        lasers show the way clear (:attr:`retreat`)."""
+        m = self.mission
+        guard = EmergencyStop(m.safety.r_es, m.safety.estop_hold, name="e-stop?")
+        return GuardedBranch(f"e-stop {label}", guard, EStopHold(guard.latch, self.retreat))
 
     def avoidance(self, label: str, goal: Goal) -> list[py_trees.behaviour.Behaviour]:
         """The obstacle-avoidance branches of a navigation (ARCHITECTURE §5), if enabled:
@@ -597,16 +614,11 @@ class _Builder:
         session = RouteSession(route, self.mission.platform)
         self.route_sessions.append(session)
         label = f"route {route.id}"
-        safety = self.mission.safety
         goal = RouteGoal(route.end, Frame.AIRPORT, None, session)
         guards = GuardSelector(
             f"guards {label}",
             [
-                GuardedBranch(
-                    f"e-stop {label}",
-                    EmergencyStop(safety.r_es, safety.estop_hold, name="e-stop?"),
-                    EStopHold(),
-                ),
+                self.estop_branch(label),
                 *self.avoidance(label, goal),
                 FollowTaughtRoute(session, self.speed_limit, name=f"follow {label}"),
             ],

@@ -19,7 +19,15 @@ the e-stop, faults and the geofence always win over the tree):
    once ``closest >= r_es`` has been observed for ``safety.estop_hold`` seconds. Once a
    bumper has been pressed the latch releases only by an operator reset, and only while
    the bumper is released; if an obstacle is still inside r_es at that moment the latch
-   becomes an obstacle latch. While latched every command is exactly zero.
+   becomes an obstacle latch. While latched every command is exactly zero, with one
+   exception: an *obstacle* latch (not a bumper, not the operator's e-stop) admits a
+   command shaped as a straight retreat (:mod:`behaviours.laws.retreat`): omega exactly
+   0, ``0 < |v| <=`` :data:`~behaviours.laws.retreat.RETREAT_SPEED`, from rest or
+   continuing one (any other command is stopped as before), into a
+   corridor the lasers cover and that holds no return inside r_es and no tracked mover
+   about to enter it (the slowdown's r_d, rule 4), with no fault and no stale data. The
+   retreat never brings the footprint closer to anything inside r_es; it then goes
+   through rules 4-7 like any command (``estop-retreat`` when one starts).
 3. **Faults and stale data**: a :meth:`fault` (an exception in a tick, a lost bus, a
    non-finite command) stops the robot until an operator reset. Every sensor is watched
    (:mod:`behaviours.laws.freshness`: a sensor is stale when its last *new* reading is
@@ -98,7 +106,7 @@ limits. After a stop the limits apply again from rest.
 
 **Events** (:attr:`SafetyLayer.events`, append-only, drained by the runtime): one per change
 of state, not one per tick: ``estop-latched`` / ``estop-released`` / ``estop-reset`` /
-``reset-refused``, ``fault-stop``, ``stale-sensor`` / ``sensor-fresh``,
+``reset-refused`` / ``estop-retreat``, ``fault-stop``, ``stale-sensor`` / ``sensor-fresh``,
 ``sensor-degraded`` / ``sensor-recovered``, ``slowdown`` /
 ``slowdown-end``, ``geofence-slow`` / ``geofence-stop`` / ``geofence-clear``, ``limit`` /
 ``limit-end`` (only the magnitude limits: the tree asked for more than the platform can
@@ -124,7 +132,8 @@ from behaviours.laws import estop
 from behaviours.laws.estop import OPERATOR as OPERATOR_ESTOP
 from behaviours.laws.estop import EStopLatch
 from behaviours.laws.freshness import Freshness
-from behaviours.laws.obstacles import footprint_distances, observable_velocity
+from behaviours.laws.obstacles import observable_velocity
+from behaviours.laws.retreat import RETREAT_SPEED, corridor_clearance, covered_sides
 from executive.core.frames import AircraftPlacement, FloatArray
 from executive.core.model import Circle, ForbiddenZone, Frame, Mission
 from executive.core.records import (
@@ -142,6 +151,7 @@ ESTOP_LATCHED = "estop-latched"
 ESTOP_RELEASED = "estop-released"
 ESTOP_RESET = "estop-reset"
 RESET_REFUSED = "reset-refused"
+ESTOP_RETREAT = "estop-retreat"
 _LATCH_EVENTS = {
     estop.LATCHED: ESTOP_LATCHED,
     estop.RELEASED: ESTOP_RELEASED,
@@ -193,7 +203,8 @@ class SafetyStatus:
     (negative: overlapping it; inf: no zone or no pose; beyond a few metres only a lower
     bound) and ``geofence_zone`` that zone. ``forced_stop`` is True when the output was
     forced to zero regardless of the deceleration limits (e-stop, fault, stale data,
-    geofence emergency).
+    geofence emergency). ``retreating``: the e-stop is latched by an obstacle and the
+    output is a retreat from it (rule 2), not a stop.
     """
 
     estop_latched: bool = False
@@ -203,6 +214,7 @@ class SafetyStatus:
     geofence_distance: float = math.inf
     geofence_zone: str | None = None
     forced_stop: bool = False
+    retreating: bool = False
 
 
 DEFAULT_STALE_LIMITS: Mapping[str, float] = MappingProxyType(
@@ -606,6 +618,15 @@ class SafetyLayer:
         self._binding = False  # a geofence rule could bind on the last period
         # e-stop latch
         self.latch = EStopLatch(mission.safety.r_es, mission.safety.estop_hold)
+        self.retreat_sides = covered_sides(
+            platform.lasers.values(),
+            platform.length,
+            platform.width,
+            mission.safety.r_es,
+            mission.safety.r_oa_trigger,
+        )
+        """The sides (+1 forwards, -1 backwards) an obstacle latch may be backed out of."""
+        self._retreating = False
         # fault latch and stale data
         self._fault: str | None = None
         self._fault_stamp = -math.inf
@@ -714,6 +735,19 @@ class SafetyLayer:
         # 3. stale data
         self._update_stale(now, frame, pose, obstacles)
         stop = self._stop_reason()
+        retreating = stop is not None and self._retreat_admitted(command, obstacles)
+        if retreating:
+            stop = None
+            if not self._retreating:
+                v = command.v
+                side = "forwards" if v > 0.0 else "backwards"
+                self._emit(
+                    now,
+                    ESTOP_RETREAT,
+                    f"backing out of the e-stop {side}: no return inside r_ES that way",
+                    v,
+                )
+        self._retreating = retreating
         scale = self._slowdown(now, obstacles, command.v)
         xy = _pose_tuple(pose)
         if stop is not None:
@@ -772,8 +806,24 @@ class SafetyLayer:
             d_min,
             zone,
             forced_stop=level == _EMERGENCY,
+            retreating=retreating,
         )
         return out_cmd
+
+    def _retreat_admitted(self, command: VelocityCommand, obstacles: Obstacles | None) -> bool:
+        """Whether ``command`` may back out of the current stop (rule 2's exception)."""
+        latch = self.latch
+        if not latch.latched or latch.cause != "obstacle":
+            return False
+        if self._fault is not None or self._stale or obstacles is None:
+            return False
+        v = command.v
+        if command.omega != 0.0 or not 0.0 < abs(v) <= RETREAT_SPEED:
+            return False  # not a retreat (NaN fails too)
+        side = 1 if v > 0.0 else -1
+        if side not in self.retreat_sides or self._v * side < 0.0:
+            return False
+        return self._closing_clearance(obstacles, side * RETREAT_SPEED) >= self.safety.r_es
 
     # -- e-stop, faults, stale data ---------------------------------------------------------------
     def _update_estop(
@@ -956,10 +1006,8 @@ class SafetyLayer:
             return r_c if v * math.cos(obstacles.bearing) > 0.0 else math.inf
         platform = self.mission.platform
         half = 0.5 * platform.width + self.safety.r_es
-        ahead = points[(points[:, 0] * v > 0.0) & (np.abs(points[:, 1]) <= half)]
-        r_d = math.inf
-        if len(ahead):
-            r_d = float(footprint_distances(ahead, platform.length, platform.width).min())
+        side = 1 if v > 0.0 else -1
+        r_d = corridor_clearance(points, side, platform.length, platform.width, self.safety.r_es)
         for track in obstacles.tracks:
             if track.clearance < r_d and self._crosses_corridor(track, v, half):
                 r_d = track.clearance

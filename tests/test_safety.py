@@ -1,7 +1,8 @@
 """The runtime safety layer (executive/safety.py): unit tests per rule, then properties.
 
 Properties (hypothesis): every command sent is within the platform limits (and the rate
-limits, except for a forced stop); while the e-stop is latched every command is zero; in
+limits, except for a forced stop); while the e-stop is latched every command is zero or,
+under an obstacle latch, a straight crawl away from the obstacle; in
 randomised closed-loop runs with adversarial commands the footprint never enters a
 forbidden zone, for airport- and aircraft-frame zones.
 """
@@ -19,6 +20,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from shapely.geometry import Point
 
+from behaviours.laws.retreat import RETREAT_SPEED
 from executive.core.frames import AircraftPlacement, Pose2
 from executive.core.loader import load_mission
 from executive.core.model import Circle, ForbiddenZone, Frame, Mission, ZoneKind
@@ -166,13 +168,18 @@ class Bench:
         pose: bool = True,
         obstacles: bool = True,
         move: bool = True,
+        seen: Obstacles | None = None,
     ) -> VelocityCommand:
+        """One period; the obstacle estimate is ``seen`` when given, else r_c = ``rc``
+        straight ahead (no points)."""
+        if seen is None and obstacles:
+            seen = Obstacles(self.t, rc, 0.0, np.zeros((0, 2)))
         out = self.layer.filter(
             command,
             now=self.t,
             frame=self.frame(scan_age, bumper),
             pose=self.pose() if pose else None,
-            obstacles=Obstacles(self.t, rc, 0.0, np.zeros((0, 2))) if obstacles else None,
+            obstacles=seen,
             reset_requested=reset,
         )
         self.sent.append(out)
@@ -697,8 +704,10 @@ finite_or_not = st.one_of(
     st.sampled_from([0.0, 1e9, -1e9, 2.0, -2.0]),
 )
 events = st.sampled_from(
-    ["none"] * 6 + ["obstacle", "slow", "bumper", "stale", "reset", "fault", "no-pose"]
+    ["none"] * 6
+    + ["obstacle", "slow", "bumper", "stale", "reset", "fault", "no-pose", "crawl", "crawl-near"]
 )
+NEAR = {"obstacle", "slow", "crawl-near"}  # an obstacle straight ahead, inside r_OA
 tick = st.tuples(st.floats(-4.0, 4.0), st.floats(-3.0, 3.0), finite_or_not, events)
 starts = st.sampled_from(
     [(-60.0, 10.0, 0.0), (20.0, 7.0, 0.0), (23.5, 4.0, 0.3), (6.0, -5.0, math.pi)]
@@ -713,9 +722,11 @@ def run_sequence(start, ticks) -> Bench:
         if event == "fault":
             lay.fault(b.t, "test fault")
         command = cmd(v, w, ptz=(odd, -odd)) if event == "none" else cmd(odd, w)
+        if event.startswith("crawl"):  # shaped as a retreat, either way
+            command = cmd(math.copysign(0.5 * RETREAT_SPEED, v), 0.0)
         b.step(
             command,
-            rc={"obstacle": s.r_es / 2, "slow": 1.2}.get(event, math.inf),
+            rc={"obstacle": s.r_es / 2, "slow": 1.2, "crawl-near": s.r_es / 2}.get(event, math.inf),
             bumper=event == "bumper",
             reset=event == "reset",
             scan_age=1.0 if event == "stale" else 0.0,
@@ -737,12 +748,21 @@ def test_property_every_output_within_the_platform_limits(start, ticks):
 
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(starts, st.lists(tick, min_size=1, max_size=80))
-def test_property_latched_means_zero(start, ticks):
+def test_property_latched_means_zero_or_a_retreat(start, ticks):
+    """While latched the output is zero, or (an obstacle latch only: never while a bumper
+    latch waits for its reset) a straight crawl away from the obstacle
+    (tests/test_retreat.py)."""
     b = run_sequence(start, ticks)
-    for out, status in zip(b.sent, b.statuses, strict=True):
+    for out, status, tick in zip(b.sent, b.statuses, ticks, strict=True):
         if status.estop_latched:
-            assert is_zero(out)
             assert set(out.pan_tilt) == set(mission().platform.cameras)
+            if status.retreating:
+                assert status.estop_cause == "obstacle"
+                assert out.omega == 0.0 and abs(out.v) <= RETREAT_SPEED
+                if tick[3] in NEAR:  # never towards an obstacle ahead
+                    assert out.v <= 0.0
+            else:
+                assert is_zero(out)
 
 
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])

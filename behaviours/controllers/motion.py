@@ -10,12 +10,15 @@ import py_trees
 
 from behaviours.base import Controller
 from behaviours.goals import Goal
-from behaviours.keys import COMMAND, FEATURES, POSE, SENSOR_FRAME
+from behaviours.keys import COMMAND, FEATURES, OBSTACLES, POSE, SENSOR_FRAME
+from behaviours.laws.estop import EStopLatch
 from behaviours.laws.go_to_goal import GoToGoal, GoToGoalParams
+from behaviours.laws.retreat import Retreat
 from executive.core.frames import Pose2, aircraft_from_robot, pan_tilt_towards
 from executive.core.model import CameraSpec, Feature
 from executive.core.records import (
     FeatureObservations,
+    Obstacles,
     PanTiltRate,
     PoseEstimate,
     SensorFrame,
@@ -29,15 +32,32 @@ Status = py_trees.common.Status
 
 
 class EStopHold(Controller):
-    """Zero command, for as long as its guard holds (seed lines 1536-1542)."""
+    """Zero command, for as long as its guard holds (seed lines 1536-1542); under an
+    obstacle latch (``latch``, the guard's), a straight crawl out of it where the lasers
+    show the way clear (``retreat``, :mod:`behaviours.laws.retreat`), which the safety
+    layer checks again. Without them, only the stop."""
 
+    reads = (OBSTACLES,)
     writes = (COMMAND,)
 
-    def __init__(self, name: str = "emergency stop") -> None:
+    def __init__(
+        self,
+        latch: EStopLatch | None = None,
+        retreat: Retreat | None = None,
+        name: str = "emergency stop",
+    ) -> None:
         super().__init__(name)
+        self.latch, self.retreat = latch, retreat
 
     def update(self) -> Status:
-        self.write(COMMAND, VelocityCommand.stop())
+        v = 0.0
+        latch, retreat = self.latch, self.retreat
+        if latch is not None and retreat is not None and latch.cause == "obstacle":
+            obstacles: Obstacles | None = self.read(OBSTACLES)
+            if obstacles is not None:
+                v = retreat.speed(obstacles.points, obstacles.closest)
+        self.feedback_message = f"backing out at {v:+.2f} m/s" if v else "stopped"
+        self.write(COMMAND, VelocityCommand(v, 0.0) if v else VelocityCommand.stop())
         return Status.RUNNING
 
 

@@ -1,0 +1,180 @@
+"""Backing out of an obstacle e-stop (behaviours/laws/retreat.py, executive/safety.py rule
+2, behaviours/controllers/motion.py EStopHold): the law's geometry, its safety property,
+the layer's admission rules and the tree's proposal."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from behaviours.controllers.motion import EStopHold
+from behaviours.keys import COMMAND, OBSTACLES
+from behaviours.laws.estop import EStopLatch
+from behaviours.laws.obstacles import closest_obstacle, footprint_distances
+from behaviours.laws.retreat import (
+    BACKWARD,
+    FORWARD,
+    RETREAT_CLEARANCE,
+    RETREAT_SPEED,
+    Retreat,
+    corridor_clearance,
+    covered_sides,
+    retreat_side,
+)
+from executive.core.records import Obstacles, TrackedObstacle
+from tests.conftest import blackboard_writer
+from tests.test_safety import Bench, cmd, is_zero, layer, mission
+
+L, W, R_ES = 1.3, 0.9, 0.6
+
+
+def seen(t: float, points: list[tuple[float, float]], tracks=()) -> Obstacles:
+    pts = np.array(points, dtype=float).reshape(-1, 2)
+    m = mission().platform
+    r_c, bearing = closest_obstacle(pts, m.length, m.width)
+    return Obstacles(t, r_c, bearing, pts, tuple(tracks))
+
+
+# -- the law --------------------------------------------------------------------------------------
+def test_corridor_clearance_sees_only_its_side_and_width():
+    points = np.array([[1.0, 0.0], [-2.0, 0.0], [0.0, 3.0], [0.9, 0.9]])
+    assert math.isclose(corridor_clearance(points, FORWARD, L, W, R_ES), 1.0 - L / 2)
+    assert math.isclose(corridor_clearance(points, BACKWARD, L, W, R_ES), 2.0 - L / 2)
+    beside = np.array([[0.2, W / 2 + R_ES + 0.01]])
+    assert corridor_clearance(beside, FORWARD, L, W, R_ES) == math.inf
+    assert corridor_clearance(np.zeros((0, 2)), BACKWARD, L, W, R_ES) == math.inf
+
+
+def test_lasers_decide_which_sides_may_be_backed_into():
+    lasers = mission().platform.lasers
+    assert covered_sides(lasers.values(), L, W, R_ES, 2.5) == {FORWARD, BACKWARD}
+    front = [lasers["front"]]
+    assert covered_sides(front, L, W, R_ES, 2.5) == {FORWARD}
+    narrow = dataclasses.replace(lasers["rear"], fov=math.radians(60))
+    assert covered_sides([lasers["front"], narrow], L, W, R_ES, 2.5) == {FORWARD}
+    short = dataclasses.replace(lasers["rear"], range=1.0)
+    assert covered_sides([lasers["front"], short], L, W, R_ES, 2.5) == {FORWARD}
+
+
+def test_retreat_side_backs_away_from_what_is_inside_r_es():
+    both = {FORWARD, BACKWARD}
+    ahead = np.array([[L / 2 + 0.3, 0.1], [-4.0, 0.0]])
+    assert retreat_side(ahead, both, L, W, R_ES) == BACKWARD
+    assert retreat_side(ahead, {FORWARD}, L, W, R_ES) == 0  # no rear laser
+    behind = -ahead
+    assert retreat_side(behind, both, L, W, R_ES) == FORWARD
+    pinned = np.array([[L / 2 + 0.3, 0.0], [-L / 2 - 0.3, 0.0]])
+    assert retreat_side(pinned, both, L, W, R_ES) == 0
+
+
+points_strategy = st.lists(
+    st.tuples(st.floats(-3.0, 3.0), st.floats(-3.0, 3.0)), min_size=1, max_size=30
+)
+
+
+@settings(max_examples=200, deadline=None)
+@given(points_strategy, st.floats(0.001, 2.0))
+def test_property_a_retreat_never_closes_on_anything_inside_r_es(points, travel):
+    """Whatever the returns, driving any distance towards the side the law picks never
+    decreases the footprint's distance to a return that was inside r_ES."""
+    pts = np.array(points)
+    side = retreat_side(pts, {FORWARD, BACKWARD}, L, W, R_ES)
+    if side == 0:
+        return
+    before = footprint_distances(pts, L, W)
+    moved = pts - np.array([side * travel, 0.0])  # the robot moves, the points stay
+    after = footprint_distances(moved, L, W)
+    inside = before < R_ES
+    assert np.all(after[inside] >= before[inside] - 1e-12)
+
+
+def test_retreat_speed_stops_once_clear_enough():
+    retreat = Retreat(L, W, R_ES, frozenset({FORWARD, BACKWARD}))
+    ahead = np.array([[L / 2 + 0.3, 0.0]])
+    assert retreat.speed(ahead, 0.3) == -RETREAT_SPEED
+    far = np.array([[L / 2 + R_ES + RETREAT_CLEARANCE + 0.01, 0.0]])
+    assert retreat.speed(far, R_ES + RETREAT_CLEARANCE + 0.01) == 0.0
+
+
+# -- the safety layer -----------------------------------------------------------------------------
+AHEAD = [(0.65 + 0.3, 0.0)]  # 0.3 m in front of the footprint: inside r_ES
+
+
+def latched_bench(**kw) -> Bench:
+    b = Bench(layer(**kw))
+    for _ in range(20):
+        b.step(cmd(1.0))
+    out = b.step(cmd(1.0), seen=seen(b.t, AHEAD))
+    assert is_zero(out) and b.layer.status.estop_latched and b.layer.status.forced_stop
+    return b
+
+
+def test_an_obstacle_latch_admits_a_crawl_away_and_nothing_else():
+    b = latched_bench()
+    lay, lim = b.layer, b.layer.limits
+    # towards the obstacle, turning, too fast: stopped as before
+    for bad in (cmd(RETREAT_SPEED), cmd(-RETREAT_SPEED, 0.1), cmd(-2 * RETREAT_SPEED)):
+        assert is_zero(b.step(bad, seen=seen(b.t, AHEAD), move=False))
+        assert not lay.status.retreating
+    outs = [b.step(cmd(-RETREAT_SPEED), seen=seen(b.t, AHEAD), move=False) for _ in range(40)]
+    assert lay.status.estop_latched and lay.status.retreating
+    assert not lay.status.forced_stop and lay.status.stopped_reason is None
+    assert all(o.v < 0.0 and o.omega == 0.0 for o in outs)
+    assert outs[0].v >= -lim.a_max * lim.dt  # from rest, within the acceleration limit
+    assert outs[-1].v == -RETREAT_SPEED
+    assert [e.kind for e in lay.events].count("estop-retreat") == 1
+    # the obstacle follows into r_ES from behind as well: stop at once
+    pinned = [*AHEAD, (-0.65 - 0.3, 0.0)]
+    assert is_zero(b.step(cmd(-RETREAT_SPEED), seen=seen(b.t, pinned)))
+    assert lay.status.forced_stop and not lay.status.retreating
+
+
+def test_no_retreat_under_a_bumper_latch_or_without_a_rear_laser():
+    b = Bench(layer())
+    b.step(cmd(1.0), bumper=True)
+    for _ in range(20):  # the bumper released, no operator reset yet
+        assert is_zero(b.step(cmd(-RETREAT_SPEED), seen=seen(b.t, AHEAD)))
+    assert b.layer.status.estop_cause == "bumper"
+    m = mission()
+    front = {"front": m.platform.lasers["front"]}
+    blind = dataclasses.replace(m, platform=dataclasses.replace(m.platform, lasers=front))
+    b = Bench(layer(blind), m=blind)
+    b.step(cmd(0.0), seen=seen(b.t, AHEAD))
+    assert b.layer.retreat_sides == {FORWARD}
+    for _ in range(20):
+        assert is_zero(b.step(cmd(-RETREAT_SPEED), seen=seen(b.t, AHEAD)))
+
+
+def test_no_retreat_into_the_way_of_a_mover():
+    """A walker behind the robot, about to cross the corridor it would back into."""
+    b = latched_bench()
+    walker = TrackedObstacle(1, "circle", (-1.3, 1.2), (0.0, -1.0), np.eye(4), 0.3, 0.5, 5.0)
+    for _ in range(10):
+        out = b.step(cmd(-RETREAT_SPEED), seen=seen(b.t, [*AHEAD, (-1.3, 1.2)], [walker]))
+        assert is_zero(out)
+
+
+# -- the tree -------------------------------------------------------------------------------------
+def tick_hold(hold: EStopHold, obstacles: Obstacles) -> float:
+    bb = blackboard_writer(OBSTACLES, COMMAND)
+    bb.set(OBSTACLES.name, obstacles, overwrite=True)
+    hold.tick_once()
+    return bb.get(COMMAND.name).v
+
+
+@pytest.mark.usefixtures("fresh_blackboard")
+def test_the_tree_proposes_the_retreat_only_under_an_obstacle_latch():
+    retreat = Retreat(L, W, R_ES, frozenset({FORWARD, BACKWARD}))
+    latch = EStopLatch(R_ES, 1.0)
+    hold = EStopHold(latch, retreat)
+    hold.setup()
+    latch.update(0.0, 0.3, False)
+    assert tick_hold(hold, seen(0.0, AHEAD)) == -RETREAT_SPEED
+    assert tick_hold(hold, seen(0.0, [(-0.65 - 0.3, 0.0)])) == RETREAT_SPEED
+    latch.update(0.1, 0.3, ("front",))
+    assert tick_hold(hold, seen(0.1, AHEAD)) == 0.0
