@@ -278,3 +278,29 @@ def test_velocity_obstacles_remember_how_fast_a_track_was():
     assert dodge._remembered(later, 1.6) == later  # the memory is over
     other = SpiralObstacle((3.0, 1.0), (0.0, 0.0), 0.4, ident=8)  # per track
     assert dodge._remembered(other, 1.6) == other
+
+
+def test_a_dodge_handed_back_for_slowing_down_needs_fast_speed_to_come_back():
+    """Hysteresis between the two switches (campaign episode 141: a trolley standing in
+    the way, its speed estimate hovering about ``slow_speed``, switched velocity obstacles
+    and the spiral every second for 15 s and the robot never got past). Once a dodge has
+    handed a track back to the spiral because it slowed, a collision course at a speed
+    between ``slow_speed`` and ``fast_speed`` keeps the spiral; faster than
+    ``fast_speed``, it is dodged again."""
+    p = AvoidanceParams()
+    policy = AvoidancePolicy(GOAL, p)
+    crossing = track(1, 3.0, -2.2, v=(0.0, 0.3))
+    assert policy.decide(obstacles(0.0, crossing), pose()) == DODGE
+    stopped = track(1, 3.0, -0.5, v=(0.0, 0.0))
+    modes = [policy.decide(obstacles(0.1 * k, stopped), pose()) for k in range(1, 40)]
+    assert modes[-1] == SPIRAL and "slowed" in policy.message
+    jitter = track(1, 3.0, -0.5, v=(0.0, 0.5 * (p.slow_speed + p.fast_speed)))
+    modes = [policy.decide(obstacles(4.0 + 0.1 * k, jitter), pose()) for k in range(40)]
+    assert modes == [SPIRAL] * 40
+    walks = track(1, 3.0, -0.5, v=(0.0, 2.0 * p.fast_speed))
+    modes = [policy.decide(obstacles(8.0 + 0.1 * k, walks), pose()) for k in range(20)]
+    assert modes[-1] == DODGE
+    # the same collision course at the in-between speed, never handed back: dodged
+    fresh = AvoidancePolicy(GOAL, p)
+    first = track(1, 3.0, -0.5, v=(0.0, 0.5 * (p.slow_speed + p.fast_speed)))
+    assert fresh.decide(obstacles(0.0, first), pose()) == DODGE

@@ -200,6 +200,9 @@ class AvoidancePolicy:
         self.session = AvoidanceSession(margin=params.margin)
         self._released: dict[int, float] = {}
         self._speeds: dict[int, float] = {}
+        self._slowed: set[int] = set()
+        """Tracks a dodge handed back to the spiral because they slowed down: they are
+        dodged again only once faster than ``fast_speed`` (:meth:`_coming`)."""
         self.message = ""
         self._stamp: float | None = None
         self._mode: str | None = None
@@ -230,6 +233,7 @@ class AvoidancePolicy:
                 measured if previous is None else previous + gain * (measured - previous)
             )
         self._speeds = speeds
+        self._slowed = {i for i in self._slowed if speeds.get(i, math.inf) <= p.fast_speed}
 
     def _decide(self, obstacles: Obstacles, pose: PoseEstimate, dt: float) -> str | None:
         p, session, now = self.params, self.session, obstacles.stamp
@@ -284,7 +288,7 @@ class AvoidancePolicy:
             if session.mode == SPIRAL:
                 if speed[track.id] > p.fast_speed:
                     return self._switch(DODGE, track, f"it moves at {speed[track.id]:.2f} m/s")
-                if self._collision_course(obstacle, speed[track.id], robot, target_xy):
+                if self._coming(track, obstacle, robot, target_xy):
                     return self._switch(
                         DODGE,
                         track,
@@ -321,6 +325,7 @@ class AvoidancePolicy:
                 return SPIRAL
             roomy = track.clearance > p.too_close + p.too_close_hysteresis
             if speed[track.id] < p.slow_speed and blocked and roomy:
+                self._slowed.add(track.id)
                 return self._switch(SPIRAL, track, f"it slowed to {speed[track.id]:.2f} m/s")
             harmless = (
                 track.danger < Danger.ON_PATH
@@ -344,7 +349,7 @@ class AvoidancePolicy:
             return None
         track, obstacle = threat
         # a mover is dodged: fast, or on a collision course (the spiral would let it in)
-        coming = self._collision_course(obstacle, speed[track.id], robot, target_xy)
+        coming = self._coming(track, obstacle, robot, target_xy)
         mode = DODGE if speed[track.id] > p.fast_speed or coming else SPIRAL
         session.obstacle_id, session.mode, session.engaged_at = track.id, mode, now
         session.released, session.reason = False, ""
@@ -409,11 +414,28 @@ class AvoidancePolicy:
             speed = self._speeds[track.id]
             if track.clearance >= p.r_oa + p.anticipation * speed:
                 continue
-            if not self._collision_course(obstacle, speed, robot, target_xy):
+            if not self._coming(track, obstacle, robot, target_xy):
                 continue
             if best is None or track.clearance < best.clearance:
                 best = track
         return best
+
+    def _coming(
+        self,
+        track: TrackedObstacle,
+        obstacle: SpiralObstacle,
+        robot: np.ndarray,
+        target_xy: np.ndarray,
+    ) -> bool:
+        """Whether ``track`` calls for a dodge for its collision course: as
+        :meth:`_collision_course`, except that a track handed back to the spiral for
+        slowing down must first be faster than ``fast_speed`` again (hysteresis: the
+        noisy speed of a standing walker or trolley hovers about ``slow_speed``, and one
+        threshold for both switches made them alternate every second)."""
+        speed = self._speeds[track.id]
+        if track.id in self._slowed and speed <= self.params.fast_speed:
+            return False
+        return self._collision_course(obstacle, speed, robot, target_xy)
 
     def _collision_course(
         self, obstacle: SpiralObstacle, speed: float, robot: np.ndarray, target_xy: np.ndarray
