@@ -15,6 +15,12 @@ takes 0.05-0.3 s: far longer than a 20 ms tick). The result is applied a fixed
 deterministic; the robot stands still meanwhile. It then drives the waypoints one after
 the other with the go-to-goal law, and ends the avoidance (``session.released``) at the
 last one or when no path exists.
+
+The costmap is a snapshot: every tick, the returns of the current scans are checked
+against the path still ahead (:func:`path_blocked_by`, up to ``lookahead`` m). One within
+the robot's turning radius plus r_ES of it (a trolley that stopped on the path after the
+plan) would trip the e-stop on the way: the robot stops and plans again from where it
+stands (``replans`` counts them).
 """
 
 from __future__ import annotations
@@ -52,6 +58,22 @@ def known_polygons(mission: Mission, placement: AircraftPlacement) -> list[Float
     return outlines
 
 
+def path_blocked_by(points: FloatArray, path: FloatArray, radius: float) -> bool:
+    """Whether any of ``points`` (N, 2) lies closer than ``radius`` to the polyline
+    ``path`` (M, 2), M >= 1 (a single point: the distance to it)."""
+    if len(points) == 0 or len(path) == 0:
+        return False
+    if len(path) == 1:
+        return bool((np.hypot(*(points - path[0]).T) < radius).any())
+    a, b = path[:-1], path[1:]  # (S, 2) segments
+    ab = b - a
+    length2 = np.maximum((ab * ab).sum(axis=1), 1e-12)
+    rel = points[:, None, :] - a[None, :, :]  # (N, S, 2)
+    t = np.clip((rel * ab[None]).sum(axis=2) / length2[None], 0.0, 1.0)
+    gap = rel - t[..., None] * ab[None]
+    return bool((np.hypot(gap[..., 0], gap[..., 1]) < radius).any())
+
+
 def plan_path(
     start: tuple[float, float],
     goal: tuple[float, float],
@@ -81,6 +103,7 @@ class FollowPlannedPath(AvoidanceController):
         params: GoToGoalParams,
         plan_delay: float = 0.5,
         waypoint_tolerance: float = 0.4,
+        lookahead: float = 3.0,
         name: str = "fallback planner",
     ) -> None:
         super().__init__(goal, session, mission.platform, period, name)
@@ -89,6 +112,10 @@ class FollowPlannedPath(AvoidanceController):
         # a path cell keeps the robot's circumscribed circle r_ES (+ a little) clear of
         # every obstacle, so following it never trips the e-stop
         self.radius = platform.turning_radius + mission.safety.r_es + 0.15
+        # ...and a return that comes closer than this to the path ahead would trip it
+        self.blocking = platform.turning_radius + mission.safety.r_es
+        self.lookahead = lookahead
+        self.replans = 0
         self.params = dataclasses.replace(
             params, position_tolerance=waypoint_tolerance, allow_reverse=False
         )
@@ -116,6 +143,10 @@ class FollowPlannedPath(AvoidanceController):
             math.hypot(*(waypoints[self._next] - (robot.x, robot.y))) < self.waypoint_tolerance
         ):
             self._next += 1
+        if self._blocked(obstacles, robot):
+            self.replans += 1
+            self.path, self._future, self._next, self._law = None, None, 1, None
+            return self.brake(f"path blocked: planning again ({self.replans})")
         x, y = waypoints[self._next]
         if self._next == len(waypoints) - 1 and math.hypot(x - robot.x, y - robot.y) < (
             self.waypoint_tolerance
@@ -129,6 +160,29 @@ class FollowPlannedPath(AvoidanceController):
             robot, Pose2(float(x), float(y), heading), goal_heading=False, dt=self.period
         )
         return self.drive(out.v, out.omega, f"waypoint {self._next}/{len(waypoints) - 1}")
+
+    def _blocked(self, obstacles: Obstacles, robot: Pose2) -> bool:
+        """Whether a current return, further than :attr:`blocking` from the robot, lies
+        within it of the path ahead: from the robot through the next waypoints,
+        ``lookahead`` m of it."""
+        assert self.path is not None
+        points = obstacles.points
+        if len(points) == 0:
+            return False
+        # returns about the robot's own spot are the safety layer's (the robot was trapped
+        # among them): only those further along the path count
+        reach = np.hypot(points[:, 0], points[:, 1])
+        near = points[(reach >= self.blocking) & (reach < self.lookahead + self.blocking)]
+        if len(near) == 0:
+            return False
+        ahead = [np.array([robot.x, robot.y])]
+        travelled = 0.0
+        for waypoint in self.path.waypoints[self._next :]:
+            travelled += float(np.hypot(*(waypoint - ahead[-1])))
+            ahead.append(np.asarray(waypoint, dtype=float))
+            if travelled >= self.lookahead:
+                break
+        return path_blocked_by(robot.apply(near), np.array(ahead), self.blocking)
 
     def _await_plan(self, obstacles: Obstacles, pose: PoseEstimate) -> Status:
         now = obstacles.stamp

@@ -1,0 +1,81 @@
+"""The fallback planner's follower (behaviours/controllers/fallback.py): the costmap is a
+snapshot, so the path still ahead is checked against every new scan, and a return on it
+(a mover that stopped there after the plan) makes the robot stop and plan again."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from behaviours.controllers.avoidance import AvoidanceSession
+from behaviours.controllers.fallback import FollowPlannedPath, path_blocked_by
+from behaviours.goals import Goal
+from behaviours.keys import COMMAND, OBSTACLES, POSE
+from behaviours.laws.costmap import PlannedPath
+from behaviours.laws.go_to_goal import GoToGoalParams
+from executive.core.frames import Pose2
+from executive.core.loader import load_mission
+from executive.core.model import Frame
+from executive.core.records import Obstacles, PoseEstimate
+from tests.conftest import MISSIONS, blackboard_writer
+
+pytestmark = pytest.mark.usefixtures("fresh_blackboard")
+
+
+def test_path_blocked_by_measures_the_distance_to_the_polyline():
+    path = np.array([[0.0, 0.0], [4.0, 0.0], [4.0, 4.0]])
+    assert path_blocked_by(np.array([[2.0, 0.9]]), path, 1.0)
+    assert not path_blocked_by(np.array([[2.0, 1.1]]), path, 1.0)
+    assert path_blocked_by(np.array([[4.9, 3.0]]), path, 1.0)  # beside the second leg
+    assert not path_blocked_by(np.array([[5.5, -0.5]]), path, 1.0)  # past the corner
+    assert not path_blocked_by(np.zeros((0, 2)), path, 1.0)
+    assert path_blocked_by(np.array([[0.5, 0.0]]), path[:1], 1.0)
+
+
+def follower():
+    mission = load_mission(MISSIONS / "track" / "avoidance-leg.xml")
+    goal = Goal(Pose2(10.0, 0.0, 0.0), Frame.AIRPORT, mission.nominal_placement())
+    node = FollowPlannedPath(
+        goal, AvoidanceSession(margin=1.4), mission, 0.02, GoToGoalParams(), plan_delay=0.0
+    )
+    node.setup()
+    node.initialise()
+    return node
+
+
+def tick(node, bb, t: float, points: list[tuple[float, float]]):
+    """One tick with the robot at the origin facing +x and ``points`` in its frame."""
+    p = Pose2(0.0, 0.0, 0.0)
+    pts = np.array(points, dtype=float).reshape(-1, 2)
+    closest = float(np.hypot(*pts.T).min()) if len(pts) else math.inf
+    bb.set(OBSTACLES.name, Obstacles(t, closest, 0.0, pts), overwrite=True)
+    bb.set(POSE.name, PoseEstimate(t, p, np.eye(3) * 1e-4, p, 1.0), overwrite=True)
+    node.tick_once()
+    return bb.get(COMMAND.name)
+
+
+def test_a_return_on_the_path_ahead_stops_the_robot_and_plans_again():
+    bb = blackboard_writer(OBSTACLES, POSE, COMMAND)
+    node = follower()
+    straight = np.array([[0.0, 0.0], [5.0, 0.0], [10.0, 0.0]])
+    planned = PlannedPath(straight, 10.0, 0, 10.0, np.zeros((0, 2), dtype=int))
+    assert tick(node, bb, 0.0, [(0.0, 3.0)]).v == 0.0  # the first tick asks for a plan
+    node.path, node._future = planned, None  # this one, straight to the goal
+    assert tick(node, bb, 0.0, [(0.0, 3.0)]).v > 0.0  # beside, far from the path: drive
+    assert node.replans == 0
+    # a trolley stops on the path 2.5 m ahead: within the turning radius plus r_ES of it
+    out = tick(node, bb, 0.02, [(0.0, 3.0), (2.5, 0.3)])
+    assert out.v == 0.0 and out.omega == 0.0
+    assert node.replans == 1 and node.path is None and "blocked" in node.feedback_message
+    # the next ticks plan again from here (and the new plan sees the trolley)
+    tick(node, bb, 0.04, [(0.0, 3.0), (2.5, 0.3)])
+    assert node._future is not None
+    # a return beyond the lookahead, or about the robot's own spot, does not count
+    node.path, node._future = (
+        PlannedPath(straight, 10.0, 0, 10.0, np.zeros((0, 2), dtype=int)),
+        None,
+    )
+    assert tick(node, bb, 0.06, [(8.0, 0.0), (0.5, 0.9)]).v > 0.0
+    assert node.replans == 1
