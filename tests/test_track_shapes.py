@@ -71,6 +71,7 @@ def _cluster(stamp: float, position: tuple[float, float], kind: int, half: float
         clearance=np.array([max(0.0, abs(p[0, 0]) - LENGTH / 2 - half)]),
         occluded=np.zeros(1, dtype=bool),
         ends_visible=np.ones((1, 2), dtype=bool),
+        boxed=np.zeros(1, dtype=bool),
     )
 
 

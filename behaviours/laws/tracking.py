@@ -264,13 +264,17 @@ class TrackerParams:
     more than ``radius_tolerance`` times it.
     ``initial_speed_sigma`` (m/s): velocity standard deviation of a new track.
     ``max_blob_size`` (m): a blob (neither line nor circle) bigger than this (enclosing
-    radius) is a part of a large structure whose visible part changes with the view, so
+    radius about its tracked point: for a box, the centre of its fitted rectangle) is a
+    part of a large structure whose visible part changes with the view, so
     its centroid only re-anchors the track: it carries no velocity (a walker, a trolley
     or a small group stays below it).
     ``unseen_motion_time`` (s): a velocity component no view measures (an anchor: see the
     module docstring) is forgotten with this time constant.
     ``gate``: chi-square gate on the squared Mahalanobis distance (13.8: 99.9 % for 2
-    degrees of freedom). ``confirm_hits``: assignments that confirm a track (M).
+    degrees of freedom); ``max_offset`` (m): and a cluster is never farther from a
+    track's predicted point than both their sizes plus this (a partial view's inflated
+    variance let a structure's track take a cluster 19 m away). ``confirm_hits``:
+    assignments that confirm a track (M).
     ``tentative_timeout``, ``coast_time`` (s): a tentative, resp. confirmed, track not
     assigned for longer is deleted (1 s: a walker hidden by another while they cross).
     """
@@ -284,6 +288,7 @@ class TrackerParams:
     radius_tolerance: float = 0.25
     max_blob_size: float = 1.0
     unseen_motion_time: float = 0.5
+    max_offset: float = 1.0
     gate: float = 13.8
     confirm_hits: int = 3
     tentative_timeout: float = 0.1
@@ -319,6 +324,7 @@ class ObstacleTracker:
         #: the last update only re-anchored the track (a view that shows no motion)
         self.anchored = np.zeros(0, dtype=bool)
         self.last_kind = np.zeros(0, dtype=np.int8)  # the kind of the last assigned cluster
+        self.last_boxed = np.zeros(0, dtype=bool)  # ... and whether it was a fitted box
 
     def __len__(self) -> int:
         return len(self.ids)
@@ -366,22 +372,28 @@ class ObstacleTracker:
         r_xx = across * normal[:, 0] ** 2 + along * direction[:, 0] ** 2
         r_xy = (across - along) * normal[:, 0] * normal[:, 1]
         r_yy = across * normal[:, 1] ** 2 + along * direction[:, 1] ** 2
-        rows, cols = self._associate(z, r_xx, r_xy, r_yy)
+        # however inflated a partial view's variance, two views of one object lie within
+        # their sizes of each other (the prediction carries the motion)
+        reach = self.size[:, None] + clusters.size[None, :] + p.max_offset
+        rows, cols = self._associate(z, r_xx, r_xy, r_yy, reach)
         # no measurement of motion, only a new anchor: a view of a big object of another
         # kind than the last one (the middle of a face, then the centroid of an L or the
-        # centre of a fitted arc: other points of it), a line track seen as another shape
-        # (the wall with something against it), or a big blob (part of a large structure,
-        # its visible part changing)
+        # centre of a fitted arc: other points of it), a box seen as a line after a blob
+        # or the other way round (the middle of one face, then the centre of the box:
+        # half its other side apart, a trolley turning from its face to its corner), a
+        # line track seen as another shape (the wall with something against it), or a
+        # big blob (part of a large structure, its visible part changing)
         kind = clusters.kind[cols]
         not_circle = ~circle_track[rows, 0]
         big = clusters.size[cols] > p.max_blob_size
         changed = kind != self.last_kind[rows]
-        anchor = (not_circle & changed & big) | (line_track[rows] & ~is_line[cols])
+        faces = changed & (kind != CIRCLE) & (self.last_kind[rows] != CIRCLE)
+        # a blob's centroid, then its box's centre (or the other way round): other points
+        faces |= (kind == BLOB) & ~changed & (clusters.boxed[cols] != self.last_boxed[rows])
+        anchor = (not_circle & changed & (big | faces)) | (line_track[rows] & ~is_line[cols])
         anchor |= (kind == BLOB) & big
         # lines on any track but a circle's are measured across the line, and along it only
-        # when seen whole (a small object's change of kind, a trolley turning from its face
-        # to its corner, is a point measurement as before: its points differ by less than
-        # the centroid's variance allows for)
+        # when seen whole
         by_line = not_circle & is_line[cols] & (line_track[rows] | ~changed) & ~anchor
         # the view after an anchor is another view of the object: its difference from
         # the anchor is no motion either (a track alternating between a wall and a blob)
@@ -432,11 +444,12 @@ class ObstacleTracker:
             self._reanchor(rows_l[slide], direction[slide], z_l[slide], r[cols_l[slide]])
         self.whole_line[rows] = whole[cols]
         self.last_kind[rows] = clusters.kind[cols]
+        self.last_boxed[rows] = clusters.boxed[cols]
         self._describe(rows, cols, clusters, pose, t, ~partial[rows, cols])
         fresh = np.ones(len(clusters), dtype=bool)
         fresh[cols] = False
         new = fresh.nonzero()[0]
-        self._spawn(z[new], r[new], t, whole[new], clusters.kind[new])
+        self._spawn(z[new], r[new], t, whole[new], clusters.kind[new], clusters.boxed[new])
         rows = np.arange(len(self) - len(new), len(self))
         self._describe(rows, new, clusters, pose, t, np.ones(len(new), dtype=bool))
         self._prune(t)
@@ -455,11 +468,16 @@ class ObstacleTracker:
         p += np.array([[q11, 0, q12, 0], [0, q11, 0, q12], [q12, 0, q22, 0], [0, q12, 0, q22]])
 
     def _associate(
-        self, z: FloatArray, r_xx: FloatArray, r_xy: FloatArray, r_yy: FloatArray
+        self,
+        z: FloatArray,
+        r_xx: FloatArray,
+        r_xy: FloatArray,
+        r_yy: FloatArray,
+        reach: FloatArray,
     ) -> tuple[IntArray, IntArray]:
         """Global nearest neighbour between the tracks and the measurements ``z`` (C, 2)
-        of covariance ``[[r_xx, r_xy], [r_xy, r_yy]]`` (each (T, C)): (track rows, cluster
-        columns) of the gated pairs."""
+        of covariance ``[[r_xx, r_xy], [r_xy, r_yy]]`` (each (T, C)), no pair farther
+        apart than ``reach`` (T, C): (track rows, cluster columns) of the gated pairs."""
         if len(self) == 0 or len(z) == 0:
             return np.zeros(0, dtype=np.intp), np.zeros(0, dtype=np.intp)
         p = self.covariance
@@ -470,7 +488,7 @@ class ObstacleTracker:
         dy = z[:, 1] - self.state[:, 1, None]
         det = a * c - b * b
         d2 = (c * dx * dx - 2.0 * b * dx * dy + a * dy * dy) / det
-        inside = d2 <= self.params.gate
+        inside = (d2 <= self.params.gate) & (dx * dx + dy * dy <= reach * reach)
         cost = np.where(inside, d2 + np.log(det), _FORBIDDEN)
         rows, cols = linear_sum_assignment(cost)
         keep = inside[rows, cols]
@@ -557,6 +575,7 @@ class ObstacleTracker:
         t: float,
         whole_line: NDArray[np.bool_],
         kind: NDArray[np.int8],
+        boxed: NDArray[np.bool_],
     ) -> None:
         """New tentative tracks at ``z``, at rest with a broad velocity prior;
         ``whole_line``: those born of a line seen whole (:attr:`whole_line`); ``kind``:
@@ -584,6 +603,7 @@ class ObstacleTracker:
         self.whole_line = np.concatenate((self.whole_line, whole_line))
         self.anchored = np.concatenate((self.anchored, np.zeros(n, dtype=bool)))
         self.last_kind = np.concatenate((self.last_kind, kind.astype(np.int8)))
+        self.last_boxed = np.concatenate((self.last_boxed, boxed))
 
     def _describe(
         self,
@@ -632,6 +652,7 @@ class ObstacleTracker:
             "whole_line",
             "anchored",
             "last_kind",
+            "last_boxed",
         ):
             setattr(self, name, getattr(self, name)[keep])
 
