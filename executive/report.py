@@ -77,6 +77,9 @@ def metrics(run: DryRun) -> dict[str, object]:
                 "at": [round(c.x, 2), round(c.y, 2)],
                 "robot_speed": round(c.robot_speed, 3),
                 "robot_moving": c.robot_moving,
+                "robot_closing": (
+                    round(c.robot_closing, 3) if math.isfinite(c.robot_closing) else None
+                ),
             }
             for c in truth.collisions
         ],

@@ -46,6 +46,9 @@ class Collision:
     x: float
     y: float
     robot_speed: float = 0.0
+    robot_closing: float = math.nan
+    """The robot's own speed towards the other body along the contact normal (m/s;
+    negative: moving away from it; NaN: unknown)."""
 
     @property
     def robot_moving(self) -> bool:
@@ -53,12 +56,14 @@ class Collision:
         return self.robot_speed >= STILL_SPEED
 
     def describe(self) -> str:
-        """'collision with <other> at <t> s (the robot standing still | moving at v m/s)'."""
-        how = (
-            f"moving at {self.robot_speed:.2f} m/s"
-            if self.robot_moving
-            else "standing still: struck"
-        )
+        """'collision with <other> at <t> s (the robot standing still | moving at v m/s |
+        moving away at v m/s: struck)'."""
+        if not self.robot_moving:
+            how = "standing still: struck"
+        elif self.robot_closing < STILL_SPEED:  # NaN: unknown, said as moving
+            how = f"moving away at {self.robot_speed:.2f} m/s: struck"
+        else:
+            how = f"moving at {self.robot_speed:.2f} m/s"
         return f"collision with {self.other} at {self.time:.1f} s (the robot {how})"
 
 
@@ -242,8 +247,13 @@ class World:
         where = self._contact_in_robot(arbiter)
         other = self._other(arbiter)
         self._touching[other] = where
-        speed = float(self.robot_body.velocity.length)
-        self.collisions.append(Collision(self.time, self._name_of(other), *where, speed))
+        velocity = self.robot_body.velocity
+        normal = arbiter.contact_point_set.normal  # from the first shape to the second
+        if arbiter.shapes[0] is other:
+            normal = -normal
+        closing = float(velocity.dot(normal))
+        speed = float(velocity.length)
+        self.collisions.append(Collision(self.time, self._name_of(other), *where, speed, closing))
 
     def _pre_solve(self, arbiter: pymunk.Arbiter, space: pymunk.Space, data: object) -> None:
         del space, data

@@ -284,3 +284,27 @@ def test_a_collision_says_whether_the_robot_moved_or_was_struck_standing_still(t
     assert struck.other == "cart"
     assert not struck.robot_moving and struck.robot_speed < STILL_SPEED, struck
     assert "standing still: struck" in struck.describe()
+
+
+def test_a_robot_backing_away_from_what_strikes_it_is_told_apart(tmp_path):
+    """A trolley faster than the robot catches it up from behind while it drives away:
+    the robot moved, but away from the contact (its e-stop retreat, struck anyway), not
+    into it."""
+    chased = start(-60, 10, 0) + (
+        '<obstacles><path id="cart" kind="trolley" length="1.2" width="0.8" height="1.0"'
+        ' speed="1.0" start-time="0.0" loop="false">'
+        '<waypoint x="-63" y="10"/><waypoint x="-50" y="10"/></path></obstacles>'
+    )
+    robot = SimRobot(make_scenario(tmp_path / "chased", chased))
+    drive(robot, 0.2, 0.0, 6.0)
+    hit = robot.truth.collisions[0]
+    assert hit.other == "cart" and hit.robot_moving
+    assert hit.robot_closing < 0.0, hit
+    assert "moving away at" in hit.describe()
+    crate = start(-60, 10, 0) + (
+        '<obstacles><box id="crate" kind="equipment" x="-57.5" y="10" heading-deg="0"'
+        ' length="1" width="2" height="1"/></obstacles>'
+    )
+    robot = SimRobot(make_scenario(tmp_path / "crate", crate))
+    drive(robot, 0.5, 0.0, 6.0)
+    assert robot.truth.collisions[0].robot_closing > STILL_SPEED

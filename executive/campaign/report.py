@@ -48,6 +48,7 @@ from executive.campaign.results import (
 )
 from executive.core.files import write_atomic
 from executive.core.problems import InvalidInputError, Problem, SourceLocation
+from sim2d.world import STILL_SPEED
 
 REPORT_FILE = "report.html"
 SPEED_PLOT = "success_by_speed.png"
@@ -371,11 +372,17 @@ def _table(head: list[str], body: list[list[str]], numeric: Iterable[int] = ()) 
 
 
 def _robot_motion(collision: Mapping[str, object]) -> str:
-    """How the robot moved at a collision: 'moving at v m/s' or 'standing still'."""
+    """How the robot moved at a collision: 'moving at v m/s', 'moving away at v m/s'
+    (struck while backing away from the contact) or 'standing still'."""
     speed = collision.get("robot_speed")
     if not isinstance(speed, int | float):
         return "-"  # a row from before the speed was recorded
-    return f"moving at {speed:.2f} m/s" if collision.get("robot_moving") else "standing still"
+    if not collision.get("robot_moving"):
+        return "standing still"
+    closing = collision.get("robot_closing")
+    if isinstance(closing, int | float) and closing < STILL_SPEED:
+        return f"moving away at {speed:.2f} m/s"
+    return f"moving at {speed:.2f} m/s"
 
 
 def _list(items: list[object]) -> str:

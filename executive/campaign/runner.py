@@ -133,6 +133,9 @@ def episode_row(campaign: Campaign, index: int, max_time: float | None = None) -
             "kind": _kind_of(episode, c.other),
             "robot_speed": round(c.robot_speed, 3),
             "robot_moving": c.robot_moving,
+            "robot_closing": (
+                round(c.robot_closing, 3) if math.isfinite(c.robot_closing) else None
+            ),
         }
         for c in run.robot.truth.collisions
     ]
