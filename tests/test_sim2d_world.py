@@ -261,6 +261,15 @@ def test_faults_laser_dropout_camera_freeze_gps_loss_bumper_hit(tmp_path):
     assert not after.bumpers.rear
 
 
+def cart_from_to(a: tuple[float, float], b: tuple[float, float]) -> str:
+    """A trolley 'cart' driving at 1 m/s from ``a`` to ``b``, as scenario obstacles."""
+    return (
+        '<obstacles><path id="cart" kind="trolley" length="1.2" width="0.8" height="1.0"'
+        ' speed="1.0" start-time="0.0" loop="false">'
+        f'<waypoint x="{a[0]}" y="{a[1]}"/><waypoint x="{b[0]}" y="{b[1]}"/></path></obstacles>'
+    )
+
+
 def test_a_collision_says_whether_the_robot_moved_or_was_struck_standing_still(tmp_path):
     """Driving into a crate is the robot's collision; a trolley that runs into the robot
     standing still struck it: the campaign report tells one from the other."""
@@ -274,11 +283,7 @@ def test_a_collision_says_whether_the_robot_moved_or_was_struck_standing_still(t
     assert hit.robot_moving and 0.3 < hit.robot_speed < 0.6, hit
     assert hit.robot_closing > STILL_SPEED  # into it
     assert "moving at" in hit.describe()
-    trolley = start(-60, 10, 0) + (
-        '<obstacles><path id="cart" kind="trolley" length="1.2" width="0.8" height="1.0"'
-        ' speed="1.0" start-time="0.0" loop="false">'
-        '<waypoint x="-60" y="14"/><waypoint x="-60" y="6"/></path></obstacles>'
-    )
+    trolley = start(-60, 10, 0) + cart_from_to((-60, 14), (-60, 6))
     robot = SimRobot(make_scenario(tmp_path / "trolley", trolley))
     drive(robot, 0.0, 0.0, 6.0)
     struck = robot.truth.collisions[0]
@@ -291,11 +296,7 @@ def test_a_robot_backing_away_from_what_strikes_it_is_told_apart(tmp_path):
     """A trolley faster than the robot catches it up from behind while it drives away:
     the robot moved, but away from the contact (its e-stop retreat, struck anyway), not
     into it."""
-    chased = start(-60, 10, 0) + (
-        '<obstacles><path id="cart" kind="trolley" length="1.2" width="0.8" height="1.0"'
-        ' speed="1.0" start-time="0.0" loop="false">'
-        '<waypoint x="-63" y="10"/><waypoint x="-50" y="10"/></path></obstacles>'
-    )
+    chased = start(-60, 10, 0) + cart_from_to((-63, 10), (-50, 10))
     robot = SimRobot(make_scenario(tmp_path / "chased", chased))
     drive(robot, 0.2, 0.0, 6.0)
     hit = robot.truth.collisions[0]
