@@ -123,7 +123,7 @@ from behaviours.keys import COMMAND, EXTERNAL_KEYS, MissionProgress
 from behaviours.laws.augmented_image import MIN_REAL_POINTS
 from behaviours.laws.go_to_goal import GoToGoalParams
 from behaviours.laws.mosaic import localiser_from
-from behaviours.laws.retreat import Retreat, covered_sides
+from behaviours.laws.retreat import Retreat
 from behaviours.sensing.ceiling import CeilingFixer, camera_mismatch
 from behaviours.sensing.features import SenseFeatures
 from behaviours.sensing.localisation import Localise
@@ -494,15 +494,7 @@ class _Builder:
     @functools.cached_property
     def retreat(self) -> Retreat:
         """How this platform may back out of an obstacle e-stop (behaviours.laws.retreat)."""
-        m = self.mission
-        sides = covered_sides(
-            m.platform.lasers.values(),
-            m.platform.length,
-            m.platform.width,
-            m.safety.r_es,
-            m.safety.r_oa_trigger,
-        )
-        return Retreat(m.platform.length, m.platform.width, m.safety.r_es, sides)
+        return Retreat.of(self.mission)
 
     def estop_branch(self, label: str) -> GuardedBranch:
         """[e-stop?] -> emergency stop, which backs out of an obstacle latch where the

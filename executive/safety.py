@@ -133,7 +133,7 @@ from behaviours.laws.estop import OPERATOR as OPERATOR_ESTOP
 from behaviours.laws.estop import EStopLatch
 from behaviours.laws.freshness import Freshness
 from behaviours.laws.obstacles import observable_velocity
-from behaviours.laws.retreat import RETREAT_SPEED, corridor_clearance, covered_sides
+from behaviours.laws.retreat import RETREAT_SPEED, Retreat, corridor_clearance
 from executive.core.frames import AircraftPlacement, FloatArray
 from executive.core.model import Circle, ForbiddenZone, Frame, Mission
 from executive.core.records import (
@@ -618,13 +618,7 @@ class SafetyLayer:
         self._binding = False  # a geofence rule could bind on the last period
         # e-stop latch
         self.latch = EStopLatch(mission.safety.r_es, mission.safety.estop_hold)
-        self.retreat_sides = covered_sides(
-            platform.lasers.values(),
-            platform.length,
-            platform.width,
-            mission.safety.r_es,
-            mission.safety.r_oa_trigger,
-        )
+        self.retreat_sides = Retreat.of(mission).sides
         """The sides (+1 forwards, -1 backwards) an obstacle latch may be backed out of."""
         self._retreating = False
         # fault latch and stale data

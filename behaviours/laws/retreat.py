@@ -32,7 +32,7 @@ import numpy as np
 
 from behaviours.laws.obstacles import footprint_distances
 from executive.core.frames import FloatArray
-from executive.core.model import LaserSpec
+from executive.core.model import LaserSpec, Mission
 
 RETREAT_SPEED = 0.2
 """Top speed (m/s) of a retreat out of an obstacle e-stop: the slowdown floor's crawl
@@ -119,6 +119,20 @@ class Retreat:
     width: float
     r_es: float
     sides: frozenset[int]
+
+    @staticmethod
+    def of(mission: Mission) -> Retreat:
+        """The retreat of the mission's platform: its footprint, r_ES, and the sides its
+        lasers cover out to r_OA-trigger beyond the footprint."""
+        platform, safety = mission.platform, mission.safety
+        sides = covered_sides(
+            platform.lasers.values(),
+            platform.length,
+            platform.width,
+            safety.r_es,
+            safety.r_oa_trigger,
+        )
+        return Retreat(platform.length, platform.width, safety.r_es, sides)
 
     def speed(self, points: FloatArray, closest: float) -> float:
         """The speed to propose (m/s, signed; 0: stay): :data:`RETREAT_SPEED` towards
