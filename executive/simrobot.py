@@ -24,6 +24,7 @@ import datetime as dt
 import gc
 import json
 import math
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -45,7 +46,8 @@ from sim2d.scenario import FaultKind, Scenario
 STEP = 0.01
 """Seconds of the serving loop: the physics rate of sim2d (100 Hz)."""
 BASE_RATE_HZ = 50.0
-"""The base's status frames (wheels, IMU, pan-tilt, bumpers, heartbeat)."""
+"""The base's status frames (wheels, IMU, pan-tilt, bumpers, heartbeat), on the wall
+clock."""
 TRUTH_RATE_HZ = 10.0
 
 
@@ -72,6 +74,8 @@ class _Wires:
         self.detections = (
             DetectionPublisher(config.detections) if config.detections is not None else None
         )
+        self.base = BaseTimer(self.bus, self.firmware, clock)
+        self.base.start()
         self._sent: dict[str, float] = {}
         self._dropped: set[str] = set()
 
@@ -116,17 +120,8 @@ class _Wires:
         elif fix is None and self._new("gps-none", math.floor(t * rate_hz)):
             self.gps.publish(None, dt.datetime.now(dt.UTC))  # a GGA without a fix
 
-    def publish_base(self, frame: SensorFrame) -> None:
-        wheels = frame.wheels
-        left, right = (wheels.left, wheels.right) if wheels is not None else (0.0, 0.0)
-        self.firmware.publish(
-            wheels=(left, right, left, right),
-            yaw_rate=frame.imu.yaw_rate if frame.imu is not None else 0.0,
-            ptu={unit: (pt.pan, pt.tilt) for unit, pt in frame.pan_tilt.items()},
-            bumpers=(frame.bumpers.front, frame.bumpers.rear),
-        )
-
     def close(self) -> None:
+        self.base.close()
         for server in self.lasers.values():
             server.close()
         if self.gps is not None:
@@ -134,6 +129,84 @@ class _Wires:
         if self.detections is not None:
             self.detections.close()
         self.bus.shutdown()
+
+
+class BaseTimer:
+    """The base's microcontroller beside the simulation, on its own wall-clock timer.
+
+    A real base receives frames and sends its status at a fixed rate whatever the
+    computer beside it does. So here a python-can Notifier hands every received frame to
+    the firmware as it arrives (its watchdog sees our heartbeat's real arrival times), and
+    this thread sends the status frames and BASE_HEARTBEAT every 1/BASE_RATE_HZ s of wall
+    time with the latest simulated inputs. A simulator that falls behind real time (a
+    busy machine) then delays its sensors, which the executive judges as stale data, not
+    the base's heartbeat, which it would rightly judge as a lost link. A bumper contact
+    seen between two status frames still reaches the firmware (its latch).
+    """
+
+    def __init__(
+        self, bus: can.BusABC, firmware: SimulatedBaseFirmware, clock: Callable[[], float]
+    ) -> None:
+        self._firmware = firmware
+        self._clock = clock
+        self._lock = threading.Lock()
+        self._inputs: dict[str, object] = {}
+        self._pressed = (False, False)
+        """The bumper switches at the last physics step."""
+        self._contact = (False, False)
+        """Any contact since the last status frame, per bumper."""
+        self._stop = threading.Event()
+        self.error: BaseException | None = None
+        """Why the timer stopped sending (a failed send); the serving loop re-raises it."""
+        self._bus = bus
+        self._notifier: can.Notifier | None = None
+        self._thread = threading.Thread(target=self._run, name="base-firmware", daemon=True)
+
+    def start(self) -> None:
+        """Power the base on: receive and send from now on."""
+        self._notifier = can.Notifier(self._bus, [self._firmware.on_message_received], 0.05)
+        self._thread.start()
+
+    def sense(self, frame: SensorFrame) -> None:
+        """Take the simulated inputs of one physics step."""
+        wheels = frame.wheels
+        left, right = (wheels.left, wheels.right) if wheels is not None else (0.0, 0.0)
+        bumpers = (frame.bumpers.front, frame.bumpers.rear)
+        inputs = {
+            "wheels": (left, right, left, right),
+            "yaw_rate": frame.imu.yaw_rate if frame.imu is not None else 0.0,
+            "ptu": {unit: (pt.pan, pt.tilt) for unit, pt in frame.pan_tilt.items()},
+        }
+        with self._lock:
+            self._inputs = inputs
+            self._pressed = bumpers
+            self._contact = (self._contact[0] or bumpers[0], self._contact[1] or bumpers[1])
+
+    def take(self) -> dict[str, object]:
+        """The inputs of the next status frame."""
+        with self._lock:
+            inputs = {**self._inputs, "bumpers": self._contact}
+            self._contact = self._pressed
+        return inputs
+
+    def _run(self) -> None:
+        period = 1.0 / BASE_RATE_HZ
+        due = self._clock()
+        try:
+            while not self._stop.wait(max(0.0, due - self._clock())):
+                self._firmware.publish(**self.take())  # type: ignore[arg-type]
+                due += period
+                if self._clock() - due > period:  # starved: the next frame now, not a burst
+                    due = self._clock()
+        except (can.CanError, OSError, ValueError) as exc:
+            self.error = exc
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout=1.0)
+        if self._notifier is not None:
+            self._notifier.stop(timeout=1.0)
 
 
 def _units(config: RobotConfig) -> tuple[str, ...]:
@@ -162,7 +235,7 @@ def serve(
     sim = SimRobot(scenario)
     wires = _Wires(config, clock)
     end = min(max_time if max_time is not None else math.inf, scenario.duration)
-    next_base = next_truth = 0.0
+    next_truth = 0.0
     braked_at: float | None = None
     collisions = 0
     gps_rate = scenario.gps.rate_hz
@@ -171,7 +244,8 @@ def serve(
     with (out / TRUTH_FILE).open("w", encoding="utf-8") as truth:
         try:
             while not should_stop() and sim.time < end:
-                wires.firmware.poll()
+                if wires.base.error is not None:
+                    raise wires.base.error
                 command = wires.firmware.command()
                 sim.send(
                     VelocityCommand(
@@ -187,9 +261,7 @@ def serve(
                 wires.drop_lasers(scenario, sim.time)
                 wires.publish_sensors(frame)
                 wires.publish_gps(frame, sim.time, gps_rate)
-                if sim.time >= next_base:
-                    next_base += 1.0 / BASE_RATE_HZ
-                    wires.publish_base(frame)
+                wires.base.sense(frame)
                 fired = wires.firmware.watchdog_fired_at
                 if fired is not None and fired != braked_at:
                     braked_at = fired
