@@ -22,10 +22,13 @@ the e-stop, faults and the geofence always win over the tree):
    becomes an obstacle latch. While latched every command is exactly zero, with one
    exception: an *obstacle* latch (not a bumper, not the operator's e-stop) admits a
    command shaped as a straight retreat (:mod:`behaviours.laws.retreat`): omega exactly
-   0, ``0 < |v| <=`` :data:`~behaviours.laws.retreat.RETREAT_SPEED`, from rest or
-   continuing one (any other command is stopped as before), into a
-   corridor the lasers cover and that holds no return inside r_es and no tracked mover
-   about to enter it (the slowdown's r_d, rule 4), with no fault and no stale data. The
+   0, ``0 < |v| <=`` :data:`~behaviours.laws.retreat.RETREAT_SPEED` (a crawl), or up
+   to the platform's top speed when a mover closes in; under such a threat only a
+   retreat that keeps at least the predicted gap to the movers of standing still
+   (:meth:`~behaviours.laws.retreat.Retreat.no_worse`); from rest or continuing one (any
+   other command is stopped as before), into a corridor the lasers cover and that holds
+   no return inside r_es and no tracked mover about to enter it (the slowdown's r_d,
+   rule 4), with no fault and no stale data. The
    retreat never brings the footprint closer to anything inside r_es; it then goes
    through rules 4-7 like any command (``estop-retreat`` when one starts).
 3. **Faults and stale data**: a :meth:`fault` (an exception in a tick, a lost bus, a
@@ -132,8 +135,8 @@ from behaviours.laws import estop
 from behaviours.laws.estop import OPERATOR as OPERATOR_ESTOP
 from behaviours.laws.estop import EStopLatch
 from behaviours.laws.freshness import Freshness
-from behaviours.laws.obstacles import observable_velocity
-from behaviours.laws.retreat import RETREAT_SPEED, Retreat, corridor_clearance
+from behaviours.laws.obstacles import MOVER_MAX_SIZE, MOVER_SPEED, observable_velocity
+from behaviours.laws.retreat import Retreat, corridor_clearance
 from executive.core.frames import AircraftPlacement, FloatArray
 from executive.core.model import Circle, ForbiddenZone, Frame, Mission
 from executive.core.records import (
@@ -171,12 +174,6 @@ GEOFENCE_CLEAR = "geofence-clear"
 LIMIT = "limit"
 LIMIT_END = "limit-end"
 
-MOVER_SPEED = 0.1
-"""A track faster than this (m/s) counts as moving for the slowdown's corridor test
-(across its length for a line)..."""
-MOVER_MAX_SIZE = 1.5
-"""...unless it is bigger than this (enclosing radius, m): a vehicle or a structure,
-whose centroid slides as the robot's view of it changes."""
 
 _CIRCLE_SEGMENTS = 16  # per quarter circle; zone circles are circumscribed, never smaller
 _TOL = 1e-9
@@ -618,7 +615,7 @@ class SafetyLayer:
         self._binding = False  # a geofence rule could bind on the last period
         # e-stop latch
         self.latch = EStopLatch(mission.safety.r_es, mission.safety.estop_hold)
-        self.retreat_sides = Retreat.of(mission).sides
+        self.retreat = Retreat.of(mission)
         """The sides (+1 forwards, -1 backwards) an obstacle latch may be backed out of."""
         self._retreating = False
         # fault latch and stale data
@@ -812,12 +809,17 @@ class SafetyLayer:
         if self._fault is not None or self._stale or obstacles is None:
             return False
         v = command.v
-        if command.omega != 0.0 or not 0.0 < abs(v) <= RETREAT_SPEED:
+        if command.omega != 0.0 or not abs(v) > 0.0:
             return False  # not a retreat (NaN fails too)
         side = 1 if v > 0.0 else -1
-        if side not in self.retreat_sides or self._v * side < 0.0:
+        if side not in self.retreat.sides or self._v * side < 0.0:
             return False
-        return self._closing_clearance(obstacles, side * RETREAT_SPEED) >= self.safety.r_es
+        tracks = obstacles.tracks
+        if abs(v) > self.retreat.top_speed(tracks):
+            return False
+        if self.retreat.threatened(tracks) and not self.retreat.no_worse(tracks, v):
+            return False
+        return self._closing_clearance(obstacles, v) >= self.safety.r_es
 
     # -- e-stop, faults, stale data ---------------------------------------------------------------
     def _update_estop(

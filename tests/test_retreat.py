@@ -18,12 +18,16 @@ from behaviours.laws.estop import EStopLatch
 from behaviours.laws.obstacles import closest_obstacle, footprint_distances
 from behaviours.laws.retreat import (
     BACKWARD,
+    ESCAPE_SPEEDS,
     FORWARD,
     RETREAT_CLEARANCE,
     RETREAT_SPEED,
     Retreat,
     corridor_clearance,
     covered_sides,
+    movers,
+    open_sides,
+    predicted_gap,
     retreat_side,
 )
 from executive.core.records import Obstacles, TrackedObstacle
@@ -101,6 +105,86 @@ def test_retreat_speed_stops_once_clear_enough():
     assert retreat.speed(far, R_ES + RETREAT_CLEARANCE + 0.01) == 0.0
 
 
+def mover(x: float, y: float, vx: float, vy: float = 0.0, size: float = 0.3) -> TrackedObstacle:
+    """A walker-sized track at (x, y) moving at (vx, vy), robot frame."""
+    return TrackedObstacle(9, "circle", (x, y), (vx, vy), np.eye(4), size, 0.5, 5.0)
+
+
+def test_what_counts_as_a_mover():
+    walker = mover(-1.5, 0.2, 0.45)
+    assert movers([walker]) == [walker]
+    standing = mover(-1.5, 0.0, 0.05)  # below MOVER_SPEED: the tracker's noise
+    truck = mover(-3.0, 0.0, 0.45, size=2.5)  # a vehicle's track slides as the view changes
+    zone = dataclasses.replace(walker, kind="zone")
+    sliding = TrackedObstacle(  # a wall seen in part: its centroid slides along it
+        8, "line", (-1.5, 0.0), (0.0, 0.5), np.eye(4), 0.5, 1.0, 5.0, shape=(-1.5, -0.5, -1.5, 0.5)
+    )
+    assert movers([standing, truck, zone, sliding]) == []
+    assert predicted_gap([standing, truck, zone, sliding], 0.0, L, W) == math.inf
+
+
+def test_predicted_gap_follows_the_relative_motion():
+    walker = mover(-(L / 2 + 1.3), 0.0, 0.4)  # its edge 1.0 m behind the footprint
+    assert predicted_gap([walker], 0.0, L, W, horizon=0.0) == pytest.approx(1.0)
+    assert predicted_gap([walker], 0.0, L, W, horizon=2.0) == pytest.approx(0.2)
+    assert predicted_gap([walker], 0.4, L, W, horizon=2.0) == pytest.approx(1.0)
+    assert predicted_gap([walker], -0.1, L, W, horizon=2.0) == pytest.approx(0.0, abs=1e-9)
+
+
+def test_a_retreat_outruns_a_mover_that_would_reach_the_robot():
+    """A walker pressing on from behind and a trolley crossing into the robot's rear
+    corner (campaign episodes 368 and 493): a crawl at 0.2 m/s would be caught; the
+    retreat goes as fast as keeps the largest gap, and goes on once clear while the
+    threat lasts."""
+    retreat = Retreat(L, W, R_ES, frozenset({FORWARD, BACKWARD}), max_speed=1.0)
+    behind = np.array([[-(L / 2 + 0.3), 0.0]])
+    walker = mover(-(L / 2 + 0.6), 0.0, 0.5)
+    trolley = mover(-0.45, -1.27, 0.14, 0.24, size=0.6)
+    for threat in (walker, trolley):
+        assert retreat.threatened([threat])
+        v = retreat.speed(behind, 0.3, [threat])
+        assert RETREAT_SPEED < v <= 1.0
+        assert predicted_gap([threat], v, L, W) > predicted_gap([threat], RETREAT_SPEED, L, W)
+    clear = np.array([[-(L / 2 + R_ES + RETREAT_CLEARANCE + 0.1), 0.0]])
+    far = R_ES + RETREAT_CLEARANCE + 0.1
+    assert retreat.speed(clear, far, [walker]) > RETREAT_SPEED
+    assert retreat.speed(clear, far, []) == 0.0
+    assert retreat.speed(behind, 0.3, []) == RETREAT_SPEED  # no threat: the crawl
+    # something inside r_ES ahead, a walker coming on from behind: backing out, even at
+    # a crawl, would meet it sooner than standing: stay
+    ahead = np.array([[L / 2 + 0.3, 0.0]])
+    oncomer = mover(-(L / 2 + 1.5), 0.0, 0.4)
+    assert retreat.speed(ahead, 0.3, [oncomer]) == 0.0
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.lists(
+        st.tuples(
+            st.floats(-4.0, 4.0), st.floats(-3.0, 3.0), st.floats(-2.0, 2.0), st.floats(-2.0, 2.0)
+        ),
+        max_size=4,
+    ),
+    st.floats(0.0, 1.2),
+)
+def test_property_a_retreat_is_bounded_and_never_worse_than_standing(tracked, closest):
+    retreat = Retreat(L, W, R_ES, frozenset({FORWARD, BACKWARD}), max_speed=1.0)
+    tracks = [mover(x, y, vx, vy) for x, y, vx, vy in tracked]
+    v = retreat.speed(np.array([[L / 2 + closest, 0.0]]), closest, tracks)
+    assert abs(v) <= retreat.top_speed(tracks) <= retreat.max_speed
+    if v and retreat.threatened(tracks):  # never a smaller gap than standing still
+        assert retreat.no_worse(tracks, v)
+    if abs(v) > RETREAT_SPEED:  # faster only to keep the largest gap to a mover
+        assert retreat.threatened(tracks)
+        open_ = open_sides(np.array([[L / 2 + closest, 0.0]]), retreat.sides, L, W, R_ES)
+        best = max(
+            predicted_gap(tracks, side * s, L, W)
+            for s in np.linspace(RETREAT_SPEED, retreat.top_speed(tracks), ESCAPE_SPEEDS)
+            for side in open_
+        )
+        assert predicted_gap(tracks, v, L, W) >= best - 0.05
+
+
 # -- the safety layer -----------------------------------------------------------------------------
 AHEAD = [(0.65 + 0.3, 0.0)]  # 0.3 m in front of the footprint: inside r_ES
 
@@ -145,7 +229,7 @@ def test_no_retreat_under_a_bumper_latch_or_without_a_rear_laser():
     blind = dataclasses.replace(m, platform=dataclasses.replace(m.platform, lasers=front))
     b = Bench(layer(blind), m=blind)
     b.step(cmd(0.0), seen=seen(b.t, AHEAD))
-    assert b.layer.retreat_sides == {FORWARD}
+    assert b.layer.retreat.sides == {FORWARD}
     for _ in range(20):
         assert is_zero(b.step(cmd(-RETREAT_SPEED), seen=seen(b.t, AHEAD)))
 
@@ -157,6 +241,36 @@ def test_no_retreat_into_the_way_of_a_mover():
     for _ in range(10):
         out = b.step(cmd(-RETREAT_SPEED), seen=seen(b.t, [*AHEAD, (-1.3, 1.2)], [walker]))
         assert is_zero(out)
+
+
+def test_the_layer_admits_a_faster_retreat_only_under_a_threat():
+    # latched by something ahead, a walker coming on from behind: backing out would meet
+    # it sooner than standing still: refused at any speed
+    b = latched_bench()
+    walker = mover(-1.6, 0.0, 0.4)
+    for v in (-RETREAT_SPEED, -0.6):
+        assert is_zero(b.step(cmd(v), seen=seen(b.t, [*AHEAD, (-1.6, 0.0)], [walker]), move=False))
+        assert not b.layer.status.retreating
+    # latched by a walker pressing on from behind (inside r_ES): forwards, faster than it
+    b = Bench(layer())
+    for _ in range(20):
+        b.step(cmd(-1.0))
+    chaser = mover(-0.65 - 0.3 - 0.3, 0.0, 0.4)
+    pressed = [(-0.65 - 0.3, 0.0)]
+    b.step(cmd(-1.0), seen=seen(b.t, pressed, [chaser]))
+    assert b.layer.status.estop_latched
+    top = b.layer.retreat.top_speed([chaser])
+    assert top == pytest.approx(2 * 0.4)  # twice the chaser's speed
+    outs = [b.step(cmd(0.6), seen=seen(b.t, pressed, [chaser]), move=False) for _ in range(60)]
+    assert b.layer.status.retreating
+    assert outs[-1].v == pytest.approx(0.6) and outs[-1].omega == 0.0
+    # above that, or with nothing closing in: refused
+    assert is_zero(b.step(cmd(top + 0.1), seen=seen(b.t, pressed, [chaser]), move=False))
+    b = Bench(layer())
+    for _ in range(20):
+        b.step(cmd(-1.0))
+    b.step(cmd(-1.0), seen=seen(b.t, pressed))
+    assert is_zero(b.step(cmd(0.6), seen=seen(b.t, pressed), move=False))
 
 
 # -- the tree -------------------------------------------------------------------------------------

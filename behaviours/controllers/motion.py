@@ -55,7 +55,7 @@ class EStopHold(Controller):
         if latch is not None and retreat is not None and latch.cause == "obstacle":
             obstacles: Obstacles | None = self.read(OBSTACLES)
             if obstacles is not None:
-                v = retreat.speed(obstacles.points, obstacles.closest)
+                v = retreat.speed(obstacles.points, obstacles.closest, obstacles.tracks)
         self.feedback_message = f"backing out at {v:+.2f} m/s" if v else "stopped"
         self.write(COMMAND, VelocityCommand(v, 0.0) if v else VelocityCommand.stop())
         return Status.RUNNING

@@ -40,6 +40,14 @@ def footprint_distances_xy(x: FloatArray, y: FloatArray, length: float, width: f
     return np.hypot(dx, dy)
 
 
+MOVER_SPEED = 0.1
+"""A track faster than this (m/s) counts as moving (across its length for a line: see
+:func:`observable_velocity`)..."""
+MOVER_MAX_SIZE = 1.5
+"""...unless it is bigger than this (enclosing radius, m): a vehicle or a structure,
+whose centroid slides as the robot's view of it changes."""
+
+
 def closest_obstacle(points: FloatArray, length: float, width: float) -> tuple[float, float]:
     """(r_c, bearing): the nearest point's distance to the footprint and its direction
     from the robot's centre; (inf, 0) when there are no points."""
