@@ -30,8 +30,10 @@ from behaviours.laws.retreat import (
     predicted_gap,
     retreat_side,
 )
+from executive.campaign.runner import episode_row
+from executive.campaign.spec import load_campaign
 from executive.core.records import Obstacles, TrackedObstacle
-from tests.conftest import blackboard_writer
+from tests.conftest import MISSIONS, blackboard_writer
 from tests.test_safety import Bench, cmd, is_zero, layer, mission
 
 L, W, R_ES = 1.3, 0.9, 0.6
@@ -292,3 +294,16 @@ def test_the_tree_proposes_the_retreat_only_under_an_obstacle_latch():
     assert tick_hold(hold, seen(0.0, [(-0.65 - 0.3, 0.0)])) == RETREAT_SPEED
     latch.update(0.1, 0.3, ("front",))
     assert tick_hold(hold, seen(0.1, AHEAD)) == 0.0
+
+
+# -- end to end -----------------------------------------------------------------------------------
+@pytest.mark.parametrize("episode", [368, 493])
+def test_campaign_episodes_a_crawl_could_not_escape_now_complete(episode):
+    """Episodes of the shipped avoidance campaign whose robot, backing out of r_ES at a
+    crawl, was struck by what closed in (BENCHMARKS, M8: a chaser pressing on from behind
+    at 0.54 m/s, a trolley crossing into the rear corner): run alone, they complete with
+    no collision."""
+    campaign = load_campaign(MISSIONS / "campaigns" / "avoidance-leg.xml")
+    row = episode_row(campaign, episode)
+    assert row["succeeded"], row["causes"]
+    assert row["collisions"] == []
