@@ -27,8 +27,9 @@ the e-stop, faults and the geofence always win over the tree):
    retreat that keeps at least the predicted gap to the movers of standing still
    (:meth:`~behaviours.laws.retreat.Retreat.no_worse`); from rest or continuing one (any
    other command is stopped as before), into a corridor the lasers cover and that holds
-   no return inside r_es and no tracked mover about to enter it (the slowdown's r_d,
-   rule 4), with no fault and no stale data. The
+   no return inside r_es (beyond the crawl: r_es plus the retreat's stopping distance)
+   and no tracked mover about to enter it (the slowdown's r_d, rule 4), with no fault
+   and no stale data. The
    retreat never brings the footprint closer to anything inside r_es; it then goes
    through rules 4-7 like any command (``estop-retreat`` when one starts).
 3. **Faults and stale data**: a :meth:`fault` (an exception in a tick, a lost bus, a
@@ -616,7 +617,7 @@ class SafetyLayer:
         # e-stop latch
         self.latch = EStopLatch(mission.safety.r_es, mission.safety.estop_hold)
         self.retreat = Retreat.of(mission)
-        """The sides (+1 forwards, -1 backwards) an obstacle latch may be backed out of."""
+        """How an obstacle latch may be backed out of (rule 2)."""
         self._retreating = False
         # fault latch and stale data
         self._fault: str | None = None
@@ -819,7 +820,7 @@ class SafetyLayer:
             return False
         if self.retreat.threatened(tracks) and not self.retreat.no_worse(tracks, v):
             return False
-        return self._closing_clearance(obstacles, v) >= self.safety.r_es
+        return self._closing_clearance(obstacles, v) >= self.retreat.room_for(v)
 
     # -- e-stop, faults, stale data ---------------------------------------------------------------
     def _update_estop(

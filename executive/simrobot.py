@@ -131,7 +131,7 @@ class _Wires:
         self.bus.shutdown()
 
 
-class BaseTimer:
+class BaseTimer(can.Listener):
     """The base's microcontroller beside the simulation, on its own wall-clock timer.
 
     A real base receives frames and sends its status at a fixed rate whatever the
@@ -157,14 +157,21 @@ class BaseTimer:
         """Any contact since the last status frame, per bumper."""
         self._stop = threading.Event()
         self.error: BaseException | None = None
-        """Why the timer stopped sending (a failed send); the serving loop re-raises it."""
+        """Why the timer stopped sending (a failed send); the serving loop re-raises it
+        (:meth:`check`)."""
         self._bus = bus
         self._notifier: can.Notifier | None = None
         self._thread = threading.Thread(target=self._run, name="base-firmware", daemon=True)
 
+    def check(self) -> None:
+        """Raise what stopped the sending thread or the receiving Notifier, if anything
+        did: a base that went silent must end the simulator, not brake without a cause."""
+        if self.error is not None:
+            raise self.error
+
     def start(self) -> None:
         """Power the base on: receive and send from now on."""
-        self._notifier = can.Notifier(self._bus, [self._firmware.on_message_received], 0.05)
+        self._notifier = can.Notifier(self._bus, [self], 0.05)
         self._thread.start()
 
     def sense(self, frame: SensorFrame) -> None:
@@ -182,6 +189,16 @@ class BaseTimer:
             self._pressed = bumpers
             self._contact = (self._contact[0] or bumpers[0], self._contact[1] or bumpers[1])
 
+    # the Notifier's listener: frames to the firmware, a failed receive to :meth:`check`
+    def on_message_received(self, msg: can.Message) -> None:
+        self._firmware.on_message_received(msg)
+
+    def on_error(self, exc: Exception) -> None:
+        self.error = exc
+
+    def stop(self) -> None:
+        """Nothing to release: :meth:`close` ends the base."""
+
     def take(self) -> dict[str, object]:
         """The inputs of the next status frame."""
         with self._lock:
@@ -198,7 +215,7 @@ class BaseTimer:
                 due += period
                 if self._clock() - due > period:  # starved: the next frame now, not a burst
                     due = self._clock()
-        except (can.CanError, OSError, ValueError) as exc:
+        except Exception as exc:  # any failure ends the heartbeat: serve raises it
             self.error = exc
 
     def close(self) -> None:
@@ -233,19 +250,18 @@ def serve(
         return time.monotonic() - t0
 
     sim = SimRobot(scenario)
-    wires = _Wires(config, clock)
     end = min(max_time if max_time is not None else math.inf, scenario.duration)
     next_truth = 0.0
     braked_at: float | None = None
     collisions = 0
     gps_rate = scenario.gps.rate_hz
-    gc.collect()
-    gc.freeze()  # the scene and the wires: no full collection stalls the base's heartbeat
     with (out / TRUTH_FILE).open("w", encoding="utf-8") as truth:
+        wires = _Wires(config, clock)  # the base powers on: from here on it is closed
+        gc.collect()
+        gc.freeze()  # the scene and the wires: no full collection stalls the base's heartbeat
         try:
             while not should_stop() and sim.time < end:
-                if wires.base.error is not None:
-                    raise wires.base.error
+                wires.base.check()
                 command = wires.firmware.command()
                 sim.send(
                     VelocityCommand(

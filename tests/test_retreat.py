@@ -18,15 +18,14 @@ from behaviours.laws.estop import EStopLatch
 from behaviours.laws.obstacles import closest_obstacle, footprint_distances
 from behaviours.laws.retreat import (
     BACKWARD,
-    ESCAPE_SPEEDS,
     FORWARD,
+    REACTION,
     RETREAT_CLEARANCE,
     RETREAT_SPEED,
     Retreat,
     corridor_clearance,
     covered_sides,
     movers,
-    open_sides,
     predicted_gap,
     retreat_side,
 )
@@ -108,8 +107,10 @@ def test_retreat_speed_stops_once_clear_enough():
 
 
 def mover(x: float, y: float, vx: float, vy: float = 0.0, size: float = 0.3) -> TrackedObstacle:
-    """A walker-sized track at (x, y) moving at (vx, vy), robot frame."""
-    return TrackedObstacle(9, "circle", (x, y), (vx, vy), np.eye(4), size, 0.5, 5.0)
+    """A walker-sized track at (x, y) moving at (vx, vy), robot frame, with the clearance
+    its position gives."""
+    clearance = float(footprint_distances(np.array([[x, y]]), L, W)[0]) - size
+    return TrackedObstacle(9, "circle", (x, y), (vx, vy), np.eye(4), size, clearance, 5.0)
 
 
 def test_what_counts_as_a_mover():
@@ -136,8 +137,8 @@ def test_predicted_gap_follows_the_relative_motion():
 def test_a_retreat_outruns_a_mover_that_would_reach_the_robot():
     """A walker pressing on from behind and a trolley crossing into the robot's rear
     corner (campaign episodes 368 and 493): a crawl at 0.2 m/s would be caught; the
-    retreat goes as fast as keeps the largest gap, and goes on once clear while the
-    threat lasts."""
+    retreat goes as fast as keeps the mover out of r_ES longest, and goes on once clear
+    while the threat lasts."""
     retreat = Retreat(L, W, R_ES, frozenset({FORWARD, BACKWARD}), max_speed=1.0)
     behind = np.array([[-(L / 2 + 0.3), 0.0]])
     walker = mover(-(L / 2 + 0.6), 0.0, 0.5)
@@ -146,7 +147,8 @@ def test_a_retreat_outruns_a_mover_that_would_reach_the_robot():
         assert retreat.threatened([threat])
         v = retreat.speed(behind, 0.3, [threat])
         assert RETREAT_SPEED < v <= 1.0
-        assert predicted_gap([threat], v, L, W) > predicted_gap([threat], RETREAT_SPEED, L, W)
+        (fast,), (crawl,) = retreat.predict([threat], v), retreat.predict([threat], RETREAT_SPEED)
+        assert fast.key > crawl.key
     clear = np.array([[-(L / 2 + R_ES + RETREAT_CLEARANCE + 0.1), 0.0]])
     far = R_ES + RETREAT_CLEARANCE + 0.1
     assert retreat.speed(clear, far, [walker]) > RETREAT_SPEED
@@ -157,6 +159,43 @@ def test_a_retreat_outruns_a_mover_that_would_reach_the_robot():
     ahead = np.array([[L / 2 + 0.3, 0.0]])
     oncomer = mover(-(L / 2 + 1.5), 0.0, 0.4)
     assert retreat.speed(ahead, 0.3, [oncomer]) == 0.0
+
+
+def test_the_proposal_is_never_worse_than_standing():
+    """Two movers closing in (found by review: the slowest near-best candidate was worse
+    than standing, so the layer refused the tree's proposal and the robot stayed)."""
+    retreat = Retreat(L, W, R_ES, frozenset({FORWARD, BACKWARD}), max_speed=1.0)
+    tracks = [mover(1.12, -1.48, 0.20, 0.62), mover(-1.16, -0.46, 0.71, 0.0)]
+    v = retreat.speed(np.array([[L / 2 + 2.0, 0.0]]), 0.3, tracks)
+    assert v == 0.0 or retreat.no_worse(tracks, v)
+
+
+def test_no_worse_keeps_every_mover_out_of_r_es_that_standing_keeps_out():
+    retreat = Retreat(L, W, R_ES, frozenset({FORWARD, BACKWARD}), max_speed=1.0)
+    chaser = mover(-(L / 2 + 0.6), 0.0, 0.5)  # reaches the standing robot
+    crosser = mover(L / 2 + 2.2, 0.0, 0.0, -0.15)  # ahead, clear of a standing robot
+    assert retreat.no_worse([chaser], 0.6)
+    assert not retreat.no_worse([chaser], -0.2)  # towards it: inside r_ES sooner
+    # fleeing the chaser at 1 m/s runs into the crosser's way: the chaser comes in later
+    # but the crosser, which standing keeps out, comes in
+    (c_run, x_run), (c_stand, x_stand) = (
+        retreat.predict([chaser, crosser], 1.0),
+        retreat.predict([chaser, crosser], 0.0),
+    )
+    assert c_run.key > c_stand.key and x_run.intrusion < math.inf == x_stand.intrusion
+    assert not retreat.no_worse([chaser, crosser], 1.0)
+
+
+def test_a_fast_retreat_needs_room_to_stop():
+    retreat = Retreat(L, W, R_ES, frozenset({FORWARD}), max_speed=2.0, max_acceleration=1.0)
+    assert retreat.room_for(RETREAT_SPEED) == R_ES
+    assert retreat.room_for(1.0) == pytest.approx(R_ES + 1.0 * REACTION + 0.5)
+    chaser = mover(-(L / 2 + 0.5), 0.0, 0.6)
+    behind = np.array([[-(L / 2 + 0.3), 0.0]])
+    wall = np.array([[-(L / 2 + 0.3), 0.0], [L / 2 + R_ES + 0.3, 0.0]])  # 0.9 m ahead
+    assert retreat.speed(behind, 0.3, [chaser]) > 0.6
+    v = retreat.speed(wall, 0.3, [chaser])
+    assert v > 0.0 and retreat.room_for(v) <= R_ES + 0.3
 
 
 @settings(max_examples=200, deadline=None)
@@ -174,17 +213,12 @@ def test_property_a_retreat_is_bounded_and_never_worse_than_standing(tracked, cl
     tracks = [mover(x, y, vx, vy) for x, y, vx, vy in tracked]
     v = retreat.speed(np.array([[L / 2 + closest, 0.0]]), closest, tracks)
     assert abs(v) <= retreat.top_speed(tracks) <= retreat.max_speed
-    if v and retreat.threatened(tracks):  # never a smaller gap than standing still
+    if v and retreat.threatened(tracks):  # never worse than standing still
         assert retreat.no_worse(tracks, v)
-    if abs(v) > RETREAT_SPEED:  # faster only to keep the largest gap to a mover
+    if abs(v) > RETREAT_SPEED:  # faster only to keep a threatening mover out longer
         assert retreat.threatened(tracks)
-        open_ = open_sides(np.array([[L / 2 + closest, 0.0]]), retreat.sides, L, W, R_ES)
-        best = max(
-            predicted_gap(tracks, side * s, L, W)
-            for s in np.linspace(RETREAT_SPEED, retreat.top_speed(tracks), ESCAPE_SPEEDS)
-            for side in open_
-        )
-        assert predicted_gap(tracks, v, L, W) >= best - 0.05
+        worst = Retreat._score
+        assert worst(retreat.predict(tracks, v)) > worst(retreat.predict(tracks, 0.0))
 
 
 # -- the safety layer -----------------------------------------------------------------------------

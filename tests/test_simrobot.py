@@ -115,3 +115,29 @@ def test_status_frames_carry_the_latest_step(base):
     inputs = timer.take()
     assert inputs["wheels"] == (0.3, 0.3, 0.3, 0.3)
     assert inputs["ptu"] == {"front": (0.1, -0.2)}
+
+
+def test_a_contact_latches_the_running_base(base):
+    """The same through the thread: one physics step with the bumper pressed, the next
+    released; the base latches."""
+    base.timer.start()
+    base.timer.sense(_frame(front=True))
+    base.timer.sense(_frame())
+    wait_until(lambda: base.firmware.latched, 10.0, "the bumper latch")
+
+
+def test_a_base_that_cannot_send_ends_the_simulator(base):
+    """A failed send stops the heartbeat thread; the serving loop's check raises it
+    instead of letting the base go silent without a cause."""
+    base.timer.start()
+    base.timer.check()  # nothing wrong yet
+    base.timer._bus.shutdown()  # the adapter is gone
+
+    def raised() -> bool:
+        try:
+            base.timer.check()
+        except Exception:
+            return True
+        return False
+
+    wait_until(raised, 10.0, "the failure to surface")

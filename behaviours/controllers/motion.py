@@ -33,9 +33,10 @@ Status = py_trees.common.Status
 
 class EStopHold(Controller):
     """Zero command, for as long as its guard holds (seed lines 1536-1542); under an
-    obstacle latch (``latch``, the guard's), a straight crawl out of it where the lasers
-    show the way clear (``retreat``, :mod:`behaviours.laws.retreat`), which the safety
-    layer checks again. Without them, only the stop."""
+    obstacle latch (``latch``, the guard's), a straight retreat out of it where the
+    lasers show the way clear, a crawl or faster than a mover that would reach the robot
+    (``retreat``, :mod:`behaviours.laws.retreat`), which the safety layer checks again.
+    Without them, only the stop."""
 
     reads = (OBSTACLES,)
     writes = (COMMAND,)

@@ -11,10 +11,11 @@ same way out, under rules that never bring the robot closer to anything:
 * only a straight motion, forwards or backwards (omega = 0: turning in place swings the
   corners, which the lasers cannot vouch for): a crawl at :data:`RETREAT_SPEED`, or,
   when a tracked mover would come inside r_ES of the robot standing where it is within
-  :data:`THREAT_HORIZON` (:func:`predicted_gap`: a walker or a trolley pressing on, one
+  :data:`THREAT_HORIZON` (:func:`predictions`: a walker or a trolley pressing on, one
   crossing into the robot's side), the side and speed up to twice the mover's speed
-  that keep the largest predicted gap to the movers (a crawl they would catch); under
-  a threat never a motion that leaves a smaller gap than standing still;
+  that keep the movers out of r_ES longest (a crawl they would catch), with room to
+  stop; under a threat never a motion that fares worse than standing still against
+  any mover;
 * into a *corridor* (:func:`corridor_clearance`: ahead of the axle in the direction of
   motion, within half the robot's width plus r_ES of its axis) that the lasers cover
   (:func:`covered_sides`) and that holds no return inside r_ES. Every return inside r_ES
@@ -57,6 +58,10 @@ threat and to choose the retreat's speed (the slowdown's ``mover_horizon``)."""
 ESCAPE_FACTOR = 2.0
 """A retreat from a threatening mover goes at most this many times its speed (the
 velocity-obstacle dodge's escape factor)."""
+
+REACTION = 0.1
+"""Seconds before a stop takes hold (a tick of the executive and the base's cycle), as
+the mission validator counts it for r_ES."""
 
 ESCAPE_SPEEDS = 6
 """Speeds tried from :data:`RETREAT_SPEED` to the top speed when a mover threatens."""
@@ -131,28 +136,63 @@ def movers(tracks: Iterable[TrackedObstacle]) -> list[TrackedObstacle]:
     ]
 
 
+@dataclass(frozen=True, slots=True)
+class Prediction:
+    """How one mover fares against a straight motion of the robot over the horizon:
+    ``intrusion``, the first time (s) its gap falls below r_ES, ``contact`` the first
+    time it reaches the footprint (inf: never), and ``gap``, the smallest gap (m). The
+    larger, the better, in that order (:meth:`key`)."""
+
+    intrusion: float
+    contact: float
+    gap: float
+
+    @property
+    def key(self) -> tuple[float, float, float]:
+        return (self.intrusion, self.contact, self.gap)
+
+
+def predictions(
+    tracks: Iterable[TrackedObstacle],
+    velocity: float,
+    length: float,
+    width: float,
+    r_es: float,
+    horizon: float = THREAT_HORIZON,
+    step: float = 0.02,
+) -> list[Prediction]:
+    """Per moving track (:func:`movers`, in order), its :class:`Prediction` against the
+    footprint driving straight at ``velocity`` (robot frame, m/s), the track at its
+    velocity; the gap is the tracked point's distance to the footprint less the track's
+    size, sampled every ``step`` m of relative travel (so that a fast mover cannot pass a
+    corner between two samples). A gap that is not a number counts as -inf (an unknown
+    is a threat)."""
+    out = []
+    for track in movers(tracks):
+        vx, vy = _vouched(track)
+        rel_v = (vx - velocity, vy)
+        n = max(2, math.ceil(math.hypot(*rel_v) * horizon / step) + 1)
+        t = np.linspace(0.0, horizon, n)
+        rel = np.column_stack((track.position[0] + rel_v[0] * t, track.position[1] + rel_v[1] * t))
+        gaps = footprint_distances(rel, length, width) - track.size
+        gaps = np.where(np.isnan(gaps), -np.inf, gaps)
+        inside, touching = np.flatnonzero(gaps < r_es), np.flatnonzero(gaps <= 0.0)
+        intrusion = float(t[inside[0]]) if len(inside) else math.inf
+        contact = float(t[touching[0]]) if len(touching) else math.inf
+        out.append(Prediction(intrusion, contact, float(gaps.min())))
+    return out
+
+
 def predicted_gap(
     tracks: Iterable[TrackedObstacle],
     velocity: float,
     length: float,
     width: float,
     horizon: float = THREAT_HORIZON,
-    samples: int = 16,
 ) -> float:
-    """The smallest gap (m) between the footprint, driving straight at ``velocity``
-    (robot frame, m/s), and any moving track (:func:`movers`; its tracked point's distance
-    to the footprint less its size), over ``horizon`` s at the tracks' velocities; inf
-    when no track moves."""
-    moving = movers(tracks)
-    if not moving:
-        return math.inf
-    t = np.linspace(0.0, horizon, samples)
-    gaps = []
-    for track in moving:
-        vx, vy = _vouched(track)
-        rel = np.column_stack((track.position[0] + (vx - velocity) * t, track.position[1] + vy * t))
-        gaps.append(float(footprint_distances(rel, length, width).min()) - track.size)
-    return min(gaps)
+    """The smallest gap (m) of all :func:`predictions`; inf when no track moves."""
+    found = predictions(tracks, velocity, length, width, 0.0, horizon)
+    return min((p.gap for p in found), default=math.inf)
 
 
 def open_sides(
@@ -180,18 +220,22 @@ def retreat_side(
 @dataclass(frozen=True, slots=True)
 class Retreat:
     """The retreat a robot of ``length`` x ``width`` with lasers covering ``sides`` may
-    make out of an obstacle latch at ``r_es``, at most at ``max_speed``."""
+    make out of an obstacle latch at ``r_es``: at most ``max_speed``, braking at
+    ``max_acceleration`` under ``max_jerk`` (the platform's limits)."""
 
     length: float
     width: float
     r_es: float
     sides: frozenset[int]
     max_speed: float = RETREAT_SPEED
+    max_acceleration: float = 1.0
+    max_jerk: float = 0.0
+    """m/s^3; 0: no jerk limit."""
 
     @staticmethod
     def of(mission: Mission) -> Retreat:
         """The retreat of the mission's platform: its footprint, r_ES, the sides its
-        lasers cover out to r_OA-trigger beyond the footprint, and its top speed."""
+        lasers cover out to r_OA-trigger beyond the footprint, and its limits."""
         platform, safety = mission.platform, mission.safety
         sides = covered_sides(
             platform.lasers.values(),
@@ -200,30 +244,68 @@ class Retreat:
             safety.r_es,
             safety.r_oa_trigger,
         )
-        top = max(RETREAT_SPEED, platform.max_speed)
-        return Retreat(platform.length, platform.width, safety.r_es, sides, top)
+        return Retreat(
+            platform.length,
+            platform.width,
+            safety.r_es,
+            sides,
+            max(RETREAT_SPEED, platform.max_speed),
+            platform.max_acceleration,
+            platform.max_jerk,
+        )
+
+    def predict(self, tracks: Iterable[TrackedObstacle], velocity: float) -> list[Prediction]:
+        """The movers' :func:`predictions` against a retreat at ``velocity``."""
+        return predictions(tracks, velocity, self.length, self.width, self.r_es)
 
     def threatened(self, tracks: Iterable[TrackedObstacle]) -> bool:
         """Whether a mover would come inside r_ES of the robot standing where it is
-        within :data:`THREAT_HORIZON` (:func:`predicted_gap`)."""
-        return predicted_gap(tracks, 0.0, self.length, self.width) < self.r_es
+        within :data:`THREAT_HORIZON` (:func:`predictions`)."""
+        return any(p.intrusion < math.inf for p in self.predict(tracks, 0.0))
 
     def top_speed(self, tracks: Iterable[TrackedObstacle]) -> float:
         """The fastest retreat (m/s): under a threat (:meth:`threatened`)
-        :data:`ESCAPE_FACTOR` x the fastest mover's speed (at most the platform's top
-        speed), else :data:`RETREAT_SPEED`."""
+        :data:`ESCAPE_FACTOR` x the fastest mover's speed (at most :attr:`max_speed`),
+        else :data:`RETREAT_SPEED`."""
+        tracks = tuple(tracks)
         if not self.threatened(tracks):
             return RETREAT_SPEED
-        fastest = max(math.hypot(*_vouched(track)) for track in movers(tracks))
+        fastest = max((math.hypot(*_vouched(t)) for t in movers(tracks)), default=0.0)
         return min(self.max_speed, max(RETREAT_SPEED, ESCAPE_FACTOR * fastest))
 
+    def stopping(self, speed: float) -> float:
+        """How far (m) a retreat at ``speed`` may still travel once told to stop: one
+        :data:`REACTION` period, the jerk-limited ramp into full braking, then braking at
+        the platform's acceleration."""
+        v = abs(speed)
+        ramp = self.max_acceleration / self.max_jerk if self.max_jerk > 0.0 else 0.0
+        return v * (REACTION + ramp) + v * v / (2.0 * self.max_acceleration)
+
+    def room_for(self, speed: float) -> float:
+        """The corridor clearance (m) a retreat at ``speed`` needs: r_ES, and beyond the
+        crawl its :meth:`stopping` distance (a return at r_ES ahead of a fast retreat
+        would be inside r_ES before the robot stops)."""
+        return self.r_es + (self.stopping(speed) if abs(speed) > RETREAT_SPEED else 0.0)
+
     def no_worse(self, tracks: Iterable[TrackedObstacle], velocity: float) -> bool:
-        """Whether a retreat at ``velocity`` (robot frame, m/s) keeps at least the
-        :func:`predicted_gap` to the movers that standing still keeps: under a threat,
-        the condition of any retreat."""
+        """Whether a retreat at ``velocity`` (robot frame, m/s) fares no worse than
+        standing still against every mover (:class:`Prediction`: no mover inside r_ES
+        sooner, none that standing keeps out, none touching sooner, no smaller gap for
+        one that comes in at the same time): under a threat, the condition of any
+        retreat."""
         tracks = tuple(tracks)
-        gap = predicted_gap(tracks, velocity, self.length, self.width)
-        return gap >= predicted_gap(tracks, 0.0, self.length, self.width)
+        moving, standing = self.predict(tracks, velocity), self.predict(tracks, 0.0)
+        return all(m.key >= s.key for m, s in zip(moving, standing, strict=True))
+
+    @staticmethod
+    def _score(found: list[Prediction]) -> tuple[float, float, float]:
+        """The worst of the movers' (intrusion, contact, gap), each on its own: what a
+        retreat's speed is chosen by."""
+        return (
+            min((p.intrusion for p in found), default=math.inf),
+            min((p.contact for p in found), default=math.inf),
+            min((p.gap for p in found), default=math.inf),
+        )
 
     def speed(
         self, points: FloatArray, closest: float, tracks: Iterable[TrackedObstacle] = ()
@@ -231,11 +313,13 @@ class Retreat:
         """The speed to propose (m/s, signed; 0: stay).
 
         Under a threat (:meth:`threatened`): of the :data:`ESCAPE_SPEEDS` speeds up to
-        :meth:`top_speed` on each of the :func:`open_sides`, the slowest whose
-        :func:`predicted_gap` is within 5 cm of the best, when that best beats standing
-        still. Otherwise a crawl at :data:`RETREAT_SPEED` towards :func:`retreat_side`
-        until the nearest return (``closest``, r_c) is :data:`RETREAT_CLEARANCE` beyond
-        r_ES, and under a threat only when it is :meth:`no_worse` than standing."""
+        :meth:`top_speed` on each of the :func:`open_sides` that leave room to stop
+        (:meth:`room_for`) and are :meth:`no_worse` than standing, the slowest whose
+        movers come inside r_ES and reach the footprint no sooner than the best's and
+        whose smallest gap is within 5 cm of it, when that best beats standing still.
+        Otherwise a crawl at :data:`RETREAT_SPEED` towards :func:`retreat_side` until the
+        nearest return (``closest``, r_c) is :data:`RETREAT_CLEARANCE` beyond r_ES, and
+        under a threat only when it is :meth:`no_worse` than standing."""
         tracks = tuple(tracks)
         room = open_sides(points, self.sides, self.length, self.width, self.r_es)
         if not room:
@@ -246,11 +330,14 @@ class Retreat:
                 side * v
                 for v in np.linspace(RETREAT_SPEED, self.top_speed(tracks), ESCAPE_SPEEDS)
                 for side in sorted(room, key=lambda side: -room[side])
+                if room[side] >= self.room_for(v) and self.no_worse(tracks, side * v)
             ]
-            gaps = np.array([predicted_gap(tracks, v, self.length, self.width) for v in candidates])
-            k = int(np.flatnonzero(gaps >= gaps.max() - 0.05)[0])
-            if gaps.max() > predicted_gap(tracks, 0.0, self.length, self.width):
-                return float(candidates[k])
+            scores = [self._score(self.predict(tracks, v)) for v in candidates]
+            best = max(scores, default=None)
+            if best is not None and best > self._score(self.predict(tracks, 0.0)):
+                for v, (intrusion, contact, gap) in zip(candidates, scores, strict=True):
+                    if (intrusion, contact) >= best[:2] and gap >= best[2] - 0.05:
+                        return float(v)  # the slowest near the best
         if not closest < self.r_es + RETREAT_CLEARANCE:
             return 0.0
         crawl = max(SIDES, key=lambda side: room.get(side, -math.inf)) * RETREAT_SPEED
