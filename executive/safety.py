@@ -23,8 +23,8 @@ the e-stop, faults and the geofence always win over the tree):
    exception: an *obstacle* latch (not a bumper, not the operator's e-stop) admits a
    command shaped as a straight retreat (:mod:`behaviours.laws.retreat`): omega exactly
    0, ``0 < |v| <=`` :data:`~behaviours.laws.retreat.RETREAT_SPEED` (a crawl), or up
-   to the platform's top speed when a mover closes in; under such a threat only a
-   retreat that keeps at least the predicted gap to the movers of standing still
+   to twice the speed of a mover that closes in; under such a threat only a retreat
+   that fares no worse than standing still against every mover
    (:meth:`~behaviours.laws.retreat.Retreat.no_worse`); from rest or continuing one (any
    other command is stopped as before), into a corridor the lasers cover and that holds
    no return inside r_es (beyond the crawl: r_es plus the retreat's stopping distance)
