@@ -136,7 +136,7 @@ from behaviours.laws import estop
 from behaviours.laws.estop import OPERATOR as OPERATOR_ESTOP
 from behaviours.laws.estop import EStopLatch
 from behaviours.laws.freshness import Freshness
-from behaviours.laws.obstacles import MOVER_MAX_SIZE, MOVER_SPEED, observable_velocity
+from behaviours.laws.obstacles import is_mover, vouched_velocity
 from behaviours.laws.retreat import Retreat, corridor_clearance
 from executive.core.frames import AircraftPlacement, FloatArray
 from executive.core.model import Circle, ForbiddenZone, Frame, Mission
@@ -1017,13 +1017,10 @@ class SafetyLayer:
         motion term of speed-and-separation monitoring: a walker about to step in front
         of the robot slows it down before it gets there, not once it is there). A mover
         behind, chasing, never slows the robot down: that would let it catch up."""
-        if track.kind == "zone" or track.size > MOVER_MAX_SIZE:
+        if not is_mover(track):
             return False
         x, y = track.position
-        shape = track.shape if track.kind == "line" else ()
-        vx, vy = observable_velocity(track.velocity, shape)
-        if math.hypot(vx, vy) < MOVER_SPEED:
-            return False
+        vx, vy = vouched_velocity(track)
         if x * v <= 0.0:
             return False
         reach = half + track.size

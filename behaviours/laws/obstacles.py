@@ -12,6 +12,7 @@ import math
 import numpy as np
 
 from executive.core.frames import FloatArray, Pose2
+from executive.core.records import TrackedObstacle
 
 
 def scan_to_robot(
@@ -74,3 +75,20 @@ def observable_velocity(
     nx, ny = -(y1 - y0) / length, (x1 - x0) / length
     across = velocity[0] * nx + velocity[1] * ny
     return across * nx, across * ny
+
+
+def vouched_velocity(track: TrackedObstacle) -> tuple[float, float]:
+    """A track's velocity as far as the lasers vouch for it (:func:`observable_velocity`:
+    across its length for a line)."""
+    shape = track.shape if track.kind == "line" else ()
+    return observable_velocity(track.velocity, shape)
+
+
+def is_mover(track: TrackedObstacle) -> bool:
+    """Whether a track counts as moving: faster than :data:`MOVER_SPEED` as far as the
+    lasers vouch for it, no bigger than :data:`MOVER_MAX_SIZE`, not a zone."""
+    return (
+        track.kind != "zone"
+        and track.size <= MOVER_MAX_SIZE
+        and math.hypot(*vouched_velocity(track)) >= MOVER_SPEED
+    )

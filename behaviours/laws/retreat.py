@@ -37,12 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from behaviours.laws.obstacles import (
-    MOVER_MAX_SIZE,
-    MOVER_SPEED,
-    footprint_distances,
-    observable_velocity,
-)
+from behaviours.laws.obstacles import footprint_distances, is_mover, vouched_velocity
 from executive.core.frames import FloatArray
 from executive.core.model import LaserSpec, Mission
 from executive.core.records import TrackedObstacle
@@ -118,22 +113,9 @@ def covered_sides(
     return frozenset(sides)
 
 
-def _vouched(track: TrackedObstacle) -> tuple[float, float]:
-    """The velocity the lasers vouch for: across its length for a line."""
-    shape = track.shape if track.kind == "line" else ()
-    return observable_velocity(track.velocity, shape)
-
-
 def movers(tracks: Iterable[TrackedObstacle]) -> list[TrackedObstacle]:
-    """The tracks that move: faster than :data:`MOVER_SPEED` (what the lasers can vouch
-    for, across a line) and no bigger than :data:`MOVER_MAX_SIZE`, zones excluded."""
-    return [
-        track
-        for track in tracks
-        if track.kind != "zone"
-        and track.size <= MOVER_MAX_SIZE
-        and math.hypot(*_vouched(track)) >= MOVER_SPEED
-    ]
+    """The tracks that count as moving (:func:`~behaviours.laws.obstacles.is_mover`)."""
+    return [track for track in tracks if is_mover(track)]
 
 
 @dataclass(frozen=True, slots=True)
@@ -169,7 +151,7 @@ def predictions(
     is a threat)."""
     out = []
     for track in movers(tracks):
-        vx, vy = _vouched(track)
+        vx, vy = vouched_velocity(track)
         rel_v = (vx - velocity, vy)
         n = max(2, math.ceil(math.hypot(*rel_v) * horizon / step) + 1)
         t = np.linspace(0.0, horizon, n)
@@ -213,7 +195,17 @@ def retreat_side(
 ) -> int:
     """The side to back out to (:data:`FORWARD` or :data:`BACKWARD`), 0 when neither may
     be used: of the :func:`open_sides`, the one with the most room (forwards on a tie)."""
-    room = open_sides(points, sides, length, width, r_es)
+    return _roomiest(open_sides(points, sides, length, width, r_es))
+
+
+def _dominates(moving: list[Prediction], standing: list[Prediction]) -> bool:
+    """Whether every mover fares at least as well against a motion (``moving``) as
+    against the robot standing still (:attr:`Prediction.key`)."""
+    return all(m.key >= s.key for m, s in zip(moving, standing, strict=True))
+
+
+def _roomiest(room: dict[int, float]) -> int:
+    """The side with the most room (forwards on a tie), 0 when there is none."""
     return max(SIDES, key=lambda side: room.get(side, -math.inf)) if room else 0
 
 
@@ -270,7 +262,7 @@ class Retreat:
         tracks = tuple(tracks)
         if not self.threatened(tracks):
             return RETREAT_SPEED
-        fastest = max((math.hypot(*_vouched(t)) for t in movers(tracks)), default=0.0)
+        fastest = max((math.hypot(*vouched_velocity(t)) for t in movers(tracks)), default=0.0)
         return min(self.max_speed, max(RETREAT_SPEED, ESCAPE_FACTOR * fastest))
 
     def stopping(self, speed: float) -> float:
@@ -294,8 +286,7 @@ class Retreat:
         one that comes in at the same time): under a threat, the condition of any
         retreat."""
         tracks = tuple(tracks)
-        moving, standing = self.predict(tracks, velocity), self.predict(tracks, 0.0)
-        return all(m.key >= s.key for m, s in zip(moving, standing, strict=True))
+        return _dominates(self.predict(tracks, velocity), self.predict(tracks, 0.0))
 
     @staticmethod
     def _score(found: list[Prediction]) -> tuple[float, float, float]:
@@ -324,21 +315,22 @@ class Retreat:
         room = open_sides(points, self.sides, self.length, self.width, self.r_es)
         if not room:
             return 0.0
-        threat = self.threatened(tracks)
+        standing = self.predict(tracks, 0.0)
+        threat = any(p.intrusion < math.inf for p in standing)  # :meth:`threatened`
         if threat:
-            candidates = [
-                side * v
-                for v in np.linspace(RETREAT_SPEED, self.top_speed(tracks), ESCAPE_SPEEDS)
-                for side in sorted(room, key=lambda side: -room[side])
-                if room[side] >= self.room_for(v) and self.no_worse(tracks, side * v)
-            ]
-            scores = [self._score(self.predict(tracks, v)) for v in candidates]
+            candidates, scores = [], []
+            for v in np.linspace(RETREAT_SPEED, self.top_speed(tracks), ESCAPE_SPEEDS):
+                for side in sorted(room, key=lambda side: -room[side]):
+                    found = self.predict(tracks, side * v)
+                    if room[side] >= self.room_for(v) and _dominates(found, standing):
+                        candidates.append(side * v)
+                        scores.append(self._score(found))
             best = max(scores, default=None)
-            if best is not None and best > self._score(self.predict(tracks, 0.0)):
+            if best is not None and best > self._score(standing):
                 for v, (intrusion, contact, gap) in zip(candidates, scores, strict=True):
                     if (intrusion, contact) >= best[:2] and gap >= best[2] - 0.05:
                         return float(v)  # the slowest near the best
         if not closest < self.r_es + RETREAT_CLEARANCE:
             return 0.0
-        crawl = max(SIDES, key=lambda side: room.get(side, -math.inf)) * RETREAT_SPEED
-        return crawl if not threat or self.no_worse(tracks, crawl) else 0.0
+        crawl = _roomiest(room) * RETREAT_SPEED
+        return crawl if not threat or _dominates(self.predict(tracks, crawl), standing) else 0.0
