@@ -157,8 +157,8 @@ class BaseTimer(can.Listener):
         """Any contact since the last status frame, per bumper."""
         self._stop = threading.Event()
         self.error: BaseException | None = None
-        """Why the timer stopped sending (a failed send); the serving loop re-raises it
-        (:meth:`check`)."""
+        """Why the base went silent (a failed send, a failed receive); the serving loop
+        re-raises it (:meth:`check`)."""
         self._bus = bus
         self._notifier: can.Notifier | None = None
         self._thread = threading.Thread(target=self._run, name="base-firmware", daemon=True)

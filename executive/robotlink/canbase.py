@@ -893,7 +893,7 @@ class SimulatedBaseFirmware:
     clears it. Time is the base's own ``clock``; :attr:`watchdog_fired_at` is when the
     firmware noticed the watchdog expire, so a test can bound the braking delay.
 
-    Frames are consumed by :meth:`poll` (the simulator's loop) or by handing
+    Frames are consumed by :meth:`poll` (a test's loop) or by handing
     :meth:`on_message_received` to a python-can Notifier; both are thread-safe.
     """
 
