@@ -20,13 +20,14 @@ from behaviours.controllers.avoidance import (
     obstacle_discs,
 )
 from behaviours.goals import Goal
+from behaviours.keys import COMMAND, OBSTACLES, POSE
 from behaviours.laws.spiral import SpiralObstacle
 from executive.compiler import CompileOptions, compile_mission
 from executive.core.frames import Pose2
 from executive.core.loader import load_mission
 from executive.core.model import Frame
 from executive.core.records import Danger, Obstacles, PoseEstimate, TrackedObstacle
-from tests.conftest import MISSIONS
+from tests.conftest import MISSIONS, blackboard_writer
 
 GOAL = Goal(Pose2(20.0, 0.0, 0.0), Frame.AIRPORT)
 
@@ -304,3 +305,65 @@ def test_a_dodge_handed_back_for_slowing_down_needs_fast_speed_to_come_back():
     fresh = AvoidancePolicy(GOAL, p)
     first = track(1, 3.0, -0.5, v=(0.0, 0.5 * (p.slow_speed + p.fast_speed)))
     assert fresh.decide(obstacles(0.0, first), pose()) == DODGE
+
+
+def test_velocity_obstacles_standing_among_static_obstacles_are_trapped_at_once():
+    """Velocity obstacles that find no admissible motion (the robot stands) for
+    ``stalled_after`` with nothing around faster than ``fast_speed`` hand over to the
+    planner long before ``trapped_after``: obstacles that stand do not step aside
+    (campaign episodes 652, 889, 890 waited 20 s each). A robot that moves again, or a
+    mover still coming, keeps the dodge."""
+    params = AvoidanceParams(stalled_after=3.0, trapped_after=20.0)
+    policy = AvoidancePolicy(GOAL, params)
+    near = track(1, 2.0, 0.1)  # the walker stopped in the way, too close to spiral
+    assert policy.decide(obstacles(0.0, track(1, 3.0, -1.0, v=(0.0, 0.4))), pose()) == DODGE
+    modes, messages = [], []
+    for k in range(1, 60):  # the walker stopped; the controller finds no way out
+        t = 0.1 * k
+        if t >= 1.0 and policy.session.stalled_since is None:
+            policy.session.stalled_since = t
+        modes.append(policy.decide(obstacles(t, near), pose()))
+        messages.append(policy.message)
+    first = modes.index(REPLAN)
+    assert 0.1 * (first + 1) == pytest.approx(4.0)  # stalled at 1.0 s, plus 3 s
+    assert "velocity obstacles found no way" in messages[first]
+    # moving again restarts the stall clock: no planner
+    moving = AvoidancePolicy(GOAL, params)
+    assert moving.decide(obstacles(0.0, track(1, 3.0, -1.0, v=(0.0, 0.4))), pose()) == DODGE
+    modes = []
+    for k in range(1, 60):
+        t = 0.1 * k
+        moving.session.stalled_since = None if k % 20 == 0 else moving.session.stalled_since or t
+        modes.append(moving.decide(obstacles(t, near), pose()))
+    assert REPLAN not in modes
+    # a walker that keeps coming is no trap however long the robot stands
+    coming = AvoidancePolicy(GOAL, params)
+    walker = track(1, 3.0, -1.0, v=(0.0, 0.4))
+    assert coming.decide(obstacles(0.0, walker), pose()) == DODGE
+    coming.session.stalled_since = 0.0
+    modes = [coming.decide(obstacles(0.1 * k, walker), pose()) for k in range(1, 60)]
+    assert REPLAN not in modes
+
+
+@pytest.mark.usefixtures("fresh_blackboard")
+def test_the_velocity_obstacle_controller_reports_when_it_stands():
+    """:class:`DodgeObstacle` marks the session stalled while its chosen speed is zero
+    (hemmed in by static obstacles closer than its disc), and clears it once it moves."""
+    mission = load_mission(MISSIONS / "track" / "avoidance-leg.xml")
+    session = AvoidanceSession(margin=1.4, obstacle_id=1, mode=DODGE)
+    dodge = DodgeObstacle(GOAL, session, mission.platform, 0.02)
+    bb = blackboard_writer(OBSTACLES, POSE, COMMAND)
+    dodge.setup()
+    dodge.initialise()
+    angles = np.linspace(0.0, 2 * math.pi, 12, endpoint=False)
+    ring = [track(k, 1.9 * math.cos(a), 1.9 * math.sin(a), size=0.3) for k, a in enumerate(angles)]
+    bb.set(POSE.name, pose(t=0.5), overwrite=True)
+    bb.set(OBSTACLES.name, obstacles(0.5, *ring), overwrite=True)
+    dodge.tick_once()
+    assert dodge.last.speed == 0.0 and session.stalled_since == 0.5
+    bb.set(OBSTACLES.name, obstacles(0.6, *ring), overwrite=True)
+    dodge.tick_once()
+    assert session.stalled_since == 0.5  # since then, not reset every tick
+    bb.set(OBSTACLES.name, obstacles(0.7, track(1, 6.0, 3.0)), overwrite=True)
+    dodge.tick_once()
+    assert dodge.last.speed > 0.0 and session.stalled_since is None

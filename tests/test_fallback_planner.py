@@ -15,6 +15,8 @@ from behaviours.goals import Goal
 from behaviours.keys import COMMAND, OBSTACLES, POSE
 from behaviours.laws.costmap import PlannedPath
 from behaviours.laws.go_to_goal import GoToGoalParams
+from executive.campaign.runner import episode_row
+from executive.campaign.spec import load_campaign
 from executive.core.frames import Pose2
 from executive.core.loader import load_mission
 from executive.core.model import Frame
@@ -79,3 +81,42 @@ def test_a_return_on_the_path_ahead_stops_the_robot_and_plans_again():
     )
     assert tick(node, bb, 0.06, [(8.0, 0.0), (0.5, 0.9)]).v > 0.0
     assert node.replans == 1
+
+
+def test_what_the_plan_was_made_round_does_not_block_it():
+    """A trapped robot stands closer to the obstacles than a path cell may (the costmap's
+    escape region), so the first metres of its plan pass them within the blocking
+    distance. Those returns were in the plan's snapshot: they do not block it, and the
+    robot drives off instead of planning again for ever (campaign episodes 652 and 889
+    stood 20 s re-planning). A return the plan did not know still blocks it."""
+    bb = blackboard_writer(OBSTACLES, POSE, COMMAND)
+    node = follower()
+    # in a passage narrower than a path cell may be, its way out ahead (episode 652: two
+    # discs a robot's width apart)
+    wall = [(x, y) for x in np.arange(-2.0, 3.0, 0.05) for y in (-1.2, 1.2)]
+    assert tick(node, bb, 0.0, wall).v == 0.0 and node._future is not None
+    assert "planned" in (tick(node, bb, 0.02, wall), node.feedback_message)[1]
+    assert node.path is not None and node.radius > 1.2  # the start is inside the inflation
+    ahead = np.array(wall)
+    reach = np.hypot(*ahead.T)
+    known = ahead[(reach >= node.blocking) & (reach < node.lookahead + node.blocking)]
+    assert path_blocked_by(known, node.path.waypoints, node.blocking)  # would have blocked
+    speeds = [tick(node, bb, 0.04 + 0.02 * k, wall).v for k in range(20)]
+    assert node.replans == 0 and max(np.abs(speeds)) > 0.0  # it backs out of the passage
+    # a trolley that stops on the path after the plan does block it
+    first = node.path.waypoints[1]
+    trolley = [(float(first[0]), float(first[1]) + 0.2)]
+    tick(node, bb, 0.5, wall + trolley)
+    assert node.replans == 1 and "blocked" in node.feedback_message
+
+
+@pytest.mark.parametrize("episode", [652, 889])
+def test_campaign_episodes_that_stood_re_planning_now_complete(episode):
+    """Episodes of the shipped avoidance campaign that timed out (BENCHMARKS, M10/M11):
+    velocity obstacles stood 20 s between static obstacles, then the planner re-planned
+    at once for ever (652) or for 22 s (889) because its own way out passed the returns it
+    was planned round. Run alone, they complete with no collision."""
+    campaign = load_campaign(MISSIONS / "campaigns" / "avoidance-leg.xml")
+    row = episode_row(campaign, episode)
+    assert row["succeeded"], row["causes"]
+    assert row["collisions"] == []

@@ -97,6 +97,9 @@ class AvoidanceSession:
     best_distance: float = math.inf
     best_at: float = 0.0
     """Closest the robot came to the goal during this avoidance, and when (trap check)."""
+    stalled_since: float | None = None
+    """Since when velocity obstacles have found no admissible motion (the robot stands;
+    set by :class:`DodgeObstacle`, None while it moves)."""
 
 
 class AvoiderFactory(Protocol):
@@ -169,6 +172,11 @@ class AvoidanceParams:
     share this clock, so a loop of engagements and releases ends in the planner too."""
     progress: float = 0.5
     """Distance gain towards the goal that counts as progress (m)."""
+    stalled_after: float = 3.0
+    """Velocity obstacles that find no admissible motion for this long, with no obstacle
+    around faster than ``fast_speed``, leave the robot trapped at once (s): obstacles
+    that stand do not step aside, and waiting out ``trapped_after`` beside them only
+    wastes the time (campaign episodes 652, 889 and 890 stood still for 20 s each)."""
 
 
 class AvoidancePolicy:
@@ -275,16 +283,23 @@ class AvoidancePolicy:
                 session.best_distance, session.best_at = distance, now
             # trapped among static obstacles (fleeing a mover is no lack of progress; nor
             # is dodging a slow one on a collision course)
+            stalled = (
+                session.mode == DODGE
+                and session.stalled_since is not None
+                and now - session.stalled_since >= p.stalled_after
+            )
             if (
-                now - session.best_at > p.trapped_after
+                (now - session.best_at > p.trapped_after or stalled)
                 and all(speed[i] <= p.fast_speed for i in candidates)
                 and self._mover_coming(candidates, robot, target_xy) is None
             ):
-                return self._switch(
-                    REPLAN,
-                    track,
-                    f"trapped: no progress towards the goal for {p.trapped_after:.0f} s",
+                why = (
+                    f"no progress towards the goal for {p.trapped_after:.0f} s"
+                    if now - session.best_at > p.trapped_after
+                    else "velocity obstacles found no way among obstacles that stand for "
+                    f"{p.stalled_after:.0f} s"
                 )
+                return self._switch(REPLAN, track, f"trapped: {why}")
             if session.mode == SPIRAL:
                 if speed[track.id] > p.fast_speed:
                     return self._switch(DODGE, track, f"it moves at {speed[track.id]:.2f} m/s")
@@ -353,7 +368,7 @@ class AvoidancePolicy:
         mode = DODGE if speed[track.id] > p.fast_speed or coming else SPIRAL
         session.obstacle_id, session.mode, session.engaged_at = track.id, mode, now
         session.released, session.reason = False, ""
-        session.missing_since = session.clear_since = None
+        session.missing_since = session.clear_since = session.stalled_since = None
         if self._ended_at is None or now - self._ended_at > p.hold_off:
             # a fresh avoidance; one that follows another at once keeps its trap clock
             session.best_distance, session.best_at = float(np.hypot(*(target_xy - robot))), now
@@ -461,6 +476,7 @@ class AvoidancePolicy:
     def _switch(self, mode: str, track: TrackedObstacle, why: str) -> str:
         session = self.session
         session.obstacle_id, session.mode, session.clear_since = track.id, mode, None
+        session.stalled_since = None
         self.message = f"obstacle {track.id}: {mode} ({why})"
         return mode
 
@@ -750,6 +766,10 @@ class DodgeObstacle(AvoidanceController):
             previous,
         )
         self.last = choice
+        if choice.speed > 1e-6:
+            self.session.stalled_since = None
+        elif self.session.stalled_since is None:
+            self.session.stalled_since = obstacles.stamp
         v, omega = heading_command(robot.theta, choice, params.omega_max)
         return self.drive(
             v,

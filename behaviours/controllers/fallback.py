@@ -20,7 +20,10 @@ The costmap is a snapshot: every tick, the returns of the current scans are chec
 against the path still ahead (:func:`path_blocked_by`, up to ``lookahead`` m). One within
 the robot's turning radius plus r_ES of it (a trolley that stopped on the path after the
 plan) would trip the e-stop on the way: the robot stops and plans again from where it
-stands (``replans`` counts them).
+stands (``replans`` counts them). Only returns the plan did not know count: those within
+``known_tolerance`` of a return of its snapshot are obstacles it was planned round. The
+path out of a trap starts closer to them than that (the costmap's escape region), and
+counting them had the robot plan again at once, for ever (campaign episodes 652, 889).
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 
 import numpy as np
 import py_trees
+from scipy.spatial import cKDTree
 
 from behaviours.controllers.avoidance import AvoidanceController, AvoidanceSession
 from behaviours.goals import Goal
@@ -104,6 +108,7 @@ class FollowPlannedPath(AvoidanceController):
         plan_delay: float = 0.5,
         waypoint_tolerance: float = 0.4,
         lookahead: float = 3.0,
+        known_tolerance: float = 0.3,
         name: str = "fallback planner",
     ) -> None:
         super().__init__(goal, session, mission.platform, period, name)
@@ -114,7 +119,7 @@ class FollowPlannedPath(AvoidanceController):
         self.radius = platform.turning_radius + mission.safety.r_es + 0.15
         # ...and a return that comes closer than this to the path ahead would trip it
         self.blocking = platform.turning_radius + mission.safety.r_es
-        self.lookahead = lookahead
+        self.lookahead, self.known_tolerance = lookahead, known_tolerance
         self.replans = 0
         self.params = dataclasses.replace(
             params, position_tolerance=waypoint_tolerance, allow_reverse=False
@@ -122,6 +127,9 @@ class FollowPlannedPath(AvoidanceController):
         self.plan_delay, self.waypoint_tolerance = plan_delay, waypoint_tolerance
         self.path: PlannedPath | None = None
         self._future: Future[PlannedPath | None] | None = None
+        self._cloud = np.zeros((0, 2))
+        """The returns (in A) the plan being made or followed was made from."""
+        self._known: cKDTree | None = None
         self._apply_at = 0.0
         self._next = 1
         self._law: GoToGoal | None = None
@@ -129,6 +137,7 @@ class FollowPlannedPath(AvoidanceController):
     def initialise(self) -> None:
         super().initialise()
         self.path, self._future, self._next, self._law = None, None, 1, None
+        self._known = None
 
     def update(self) -> Status:
         obstacles: Obstacles | None = self.read(OBSTACLES)
@@ -146,6 +155,7 @@ class FollowPlannedPath(AvoidanceController):
         if self._blocked(obstacles, robot):
             self.replans += 1
             self.path, self._future, self._next, self._law = None, None, 1, None
+            self._known = None
             return self.brake(f"path blocked: planning again ({self.replans})")
         x, y = waypoints[self._next]
         if self._next == len(waypoints) - 1 and math.hypot(x - robot.x, y - robot.y) < (
@@ -175,6 +185,12 @@ class FollowPlannedPath(AvoidanceController):
         near = points[(reach >= self.blocking) & (reach < self.lookahead + self.blocking)]
         if len(near) == 0:
             return False
+        near = robot.apply(near)
+        if self._known is not None:  # what the plan was made round does not block it
+            distance, _ = self._known.query(near, distance_upper_bound=self.known_tolerance)
+            near = near[np.isinf(distance)]
+            if len(near) == 0:
+                return False
         ahead = [np.array([robot.x, robot.y])]
         travelled = 0.0
         for waypoint in self.path.waypoints[self._next :]:
@@ -182,7 +198,7 @@ class FollowPlannedPath(AvoidanceController):
             ahead.append(np.asarray(waypoint, dtype=float))
             if travelled >= self.lookahead:
                 break
-        return path_blocked_by(robot.apply(near), np.array(ahead), self.blocking)
+        return path_blocked_by(near, np.array(ahead), self.blocking)
 
     def _await_plan(self, obstacles: Obstacles, pose: PoseEstimate) -> Status:
         now = obstacles.stamp
@@ -193,6 +209,7 @@ class FollowPlannedPath(AvoidanceController):
             if len(obstacles.virtual):
                 points.append(robot.apply(obstacles.virtual))
             cloud = np.vstack(points) if points else np.zeros((0, 2))
+            self._cloud = cloud
             placement = pose.placement or self.goal.nominal
             self._future = _WORKER.submit(
                 plan_path,
@@ -213,4 +230,5 @@ class FollowPlannedPath(AvoidanceController):
             self.session.released, self.session.reason = True, "no path on the costmap"
             return self.brake("no path on the costmap")
         self.path = path
+        self._known = cKDTree(self._cloud) if len(self._cloud) else None
         return self.brake(f"planned {path.length:.1f} m, {len(path.waypoints) - 1} legs")
