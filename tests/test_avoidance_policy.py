@@ -240,22 +240,28 @@ def test_the_compiled_velocity_obstacles_never_dodge_slower_than_the_cruise_spee
     assert all(d.nu_min == mission.navigation.cruise_speed for d in dodges)
 
 
-def test_a_mover_coming_while_the_planner_drives_is_dodged_without_a_ping_pong():
-    """The planner's costmap is a snapshot: a slow trolley (0.11 m/s, slower than
-    ``fast_speed``, so it does not keep the trap from firing) walking at the robot while
-    the planner drives hands over to velocity obstacles (campaign episode 122: it walked
-    into the robot held by the e-stop). The hand-over restarts the trap clock, and the
-    clock does not run out while the trolley keeps coming: no bounce back to the planner."""
-    policy = AvoidancePolicy(GOAL, AvoidanceParams(trapped_after=5.0))
+def test_only_a_mover_faster_than_fast_speed_takes_the_robot_from_the_planner():
+    """The planner plans round where the slower movers will be (their sweep is in its
+    costmap, ``test_fallback_planner.py``): a slow trolley (0.11 m/s) coming while it
+    drives leaves the robot to it (campaign episodes 375 and 976: a slow chaser took the
+    robot from the planner to velocity obstacles, which stood, again and again until the
+    timeout). A trolley faster than ``fast_speed`` on a collision course hands over to
+    velocity obstacles (campaign episode 122: one walked into the robot), which get a
+    trap clock of their own, so the two do not alternate while it keeps coming."""
+    p = AvoidanceParams(trapped_after=5.0)
+    policy = AvoidancePolicy(GOAL, p)
     wall = track(1, 3.5, 0.0, size=0.9)
     modes = [policy.decide(obstacles(0.5 * k, wall), pose()) for k in range(12)]
     assert modes[-1] == REPLAN
-    trolley = track(2, 2.0, -2.2, v=(0.0, 0.11), size=0.7)
+    slow = track(2, 2.0, -2.2, v=(0.0, 0.11), size=0.7)
+    modes = [policy.decide(obstacles(6.0 + 0.1 * k, wall, slow), pose()) for k in range(30)]
+    assert modes == [REPLAN] * 30
+    fast = track(2, 2.0, -2.2, v=(0.0, 2.0 * p.fast_speed), size=0.7)
     after, messages = [], []
     for k in range(120):  # 12 s: more than twice trapped_after
-        after.append(policy.decide(obstacles(6.0 + 0.1 * k, wall, trolley), pose()))
+        after.append(policy.decide(obstacles(9.0 + 0.1 * k, wall, fast), pose()))
         messages.append(policy.message)
-    first = after.index(DODGE)  # once its low-passed speed says it moves (< 1 s)
+    first = after.index(DODGE)  # once its low-passed speed says it is fast (< 1 s)
     assert first < 10 and "while the planner drives" in messages[first]
     assert after[:first] == [REPLAN] * first and after[first:] == [DODGE] * (120 - first)
 

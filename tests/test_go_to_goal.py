@@ -664,3 +664,22 @@ def test_a_goal_that_really_moves_restarts_the_approach():
     assert law._same_goal((3.0 + 0.02, 0.0, 0.0))
     assert not law._same_goal((3.0 + 0.1, 0.0, 0.0))
     assert not law._same_goal((3.0, 0.0, math.radians(5.0)))
+
+
+def test_new_goal_starts_a_fresh_approach_however_close_the_next_goal():
+    """A goal within half the position tolerance of the one reached is the same goal (a
+    noisy goal does not restart the approach) -- unless the caller says it is a new one:
+    the fallback planner's follower moving on to a waypoint 0.14 m past the one its law
+    had reached stood still for 70 s (campaign episode 375)."""
+    params = GoToGoalParams(position_tolerance=0.4)
+    law = GoToGoal(params)
+    robot = Pose2(0.0, 0.0, 0.0)
+    out = law.command(robot, Pose2(0.004, 0.0, 0.0), goal_heading=False, v_now=0.0, dt=DT)
+    assert out.reached
+    nearby = Pose2(0.144, 0.0, 0.0)  # 0.14 m further on
+    out = law.command(robot, nearby, goal_heading=False, dt=DT)
+    assert out.reached and out.v == 0.0  # taken for the same goal: stays put
+    law.new_goal()
+    out = law.command(robot, nearby, goal_heading=False, dt=DT)
+    assert not out.reached and out.v > 0.0  # drives on, from the last command (a stop)
+    assert out.v == pytest.approx(params.max_acceleration * DT)

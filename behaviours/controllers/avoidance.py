@@ -199,6 +199,13 @@ class AvoidancePolicy:
     up, or when another, faster obstacle moves onto the path; velocity obstacles switch
     back to the spiral when the obstacle slows down while still in the way.
 
+    Trapped: an avoidance that brings the robot no closer to the goal for
+    ``trapped_after``, or velocity obstacles that find no motion for ``stalled_after``,
+    with nothing around faster than ``fast_speed``, hand over to the fallback planner,
+    which plans round the obstacles and where the slower movers will be; only a mover
+    faster than ``fast_speed`` on a collision course takes the robot from it (velocity
+    obstacles, with a trap clock of their own).
+
     :meth:`decide` is evaluated once per obstacle estimate (the guards of one tick share
     it); every change leaves its reason in :attr:`message`.
     """
@@ -259,8 +266,10 @@ class AvoidancePolicy:
             if session.released:
                 return self._end(now, session.reason)
             if session.mode == REPLAN:  # the planner ends it (session.released)...
-                coming = self._mover_coming(candidates, robot, target_xy)
-                if coming is not None:  # ...unless a mover comes: its costmap is a snapshot
+                # ...unless a mover faster than fast_speed comes: the planner plans round
+                # where slower ones will be, not where fast ones will
+                coming = self._mover_coming(candidates, robot, target_xy, p.fast_speed)
+                if coming is not None:
                     session.best_at = now  # the dodge gets its own trapped_after
                     return self._switch(
                         DODGE,
@@ -281,17 +290,16 @@ class AvoidancePolicy:
             distance = float(np.hypot(*(target_xy - robot)))
             if distance < session.best_distance - p.progress:
                 session.best_distance, session.best_at = distance, now
-            # trapped among static obstacles (fleeing a mover is no lack of progress; nor
-            # is dodging a slow one on a collision course)
+            # trapped among obstacles that stand or move slower than fast_speed (fleeing a
+            # faster mover is no lack of progress); the planner plans round where the
+            # slow ones will be
             stalled = (
                 session.mode == DODGE
                 and session.stalled_since is not None
                 and now - session.stalled_since >= p.stalled_after
             )
-            if (
-                (now - session.best_at > p.trapped_after or stalled)
-                and all(speed[i] <= p.fast_speed for i in candidates)
-                and self._mover_coming(candidates, robot, target_xy) is None
+            if (now - session.best_at > p.trapped_after or stalled) and all(
+                speed[i] <= p.fast_speed for i in candidates
             ):
                 why = (
                     f"no progress towards the goal for {p.trapped_after:.0f} s"
@@ -421,13 +429,15 @@ class AvoidancePolicy:
         candidates: dict[int, tuple[TrackedObstacle, SpiralObstacle]],
         robot: np.ndarray,
         target_xy: np.ndarray,
+        faster_than: float = 0.0,
     ) -> TrackedObstacle | None:
-        """The closest obstacle under r_OA (plus its anticipation) whose motion meets the
-        robot's (:meth:`_collision_course`), if any."""
+        """The closest obstacle under r_OA (plus its anticipation), faster than
+        ``faster_than``, whose motion meets the robot's (:meth:`_collision_course`), if
+        any."""
         p, best = self.params, None
         for track, obstacle in candidates.values():
             speed = self._speeds[track.id]
-            if track.clearance >= p.r_oa + p.anticipation * speed:
+            if track.clearance >= p.r_oa + p.anticipation * speed or speed <= faster_than:
                 continue
             if not self._coming(track, obstacle, robot, target_xy):
                 continue

@@ -8,6 +8,10 @@ while), :class:`FollowPlannedPath` builds a costmap around the robot and the goa
 * the laser returns of the last scans (both scanners, in A with the pose estimate),
 * the virtual zone-wall points and every forbidden zone's outline,
 * the aircraft's footprint placed with the current placement estimate,
+* where every tracked mover will be over the next ``mover_horizon`` seconds at its
+  tracked velocity (:func:`behaviours.laws.obstacles.mover_sweep`): a walker or a trolley
+  slower than the avoidance's ``fast_speed`` is planned round, not dodged (faster ones
+  take the robot from the planner, :class:`~behaviours.controllers.avoidance.AvoidancePolicy`),
 
 inflates it by the robot's circumscribed radius plus r_ES, and runs A* in a worker thread (a plan
 takes 0.05-0.3 s: far longer than a 20 ms tick). The result is applied a fixed
@@ -42,6 +46,7 @@ from behaviours.goals import Goal
 from behaviours.keys import OBSTACLES, POSE
 from behaviours.laws.costmap import Costmap, PlannedPath
 from behaviours.laws.go_to_goal import GoToGoal, GoToGoalParams
+from behaviours.laws.obstacles import mover_sweep
 from executive.core.frames import AircraftPlacement, FloatArray, Pose2
 from executive.core.model import Frame, Mission
 from executive.core.records import Obstacles, PoseEstimate
@@ -109,6 +114,7 @@ class FollowPlannedPath(AvoidanceController):
         waypoint_tolerance: float = 0.4,
         lookahead: float = 3.0,
         known_tolerance: float = 0.3,
+        mover_horizon: float = 5.0,
         name: str = "fallback planner",
     ) -> None:
         super().__init__(goal, session, mission.platform, period, name)
@@ -120,6 +126,7 @@ class FollowPlannedPath(AvoidanceController):
         # ...and a return that comes closer than this to the path ahead would trip it
         self.blocking = platform.turning_radius + mission.safety.r_es
         self.lookahead, self.known_tolerance = lookahead, known_tolerance
+        self.mover_horizon = mover_horizon
         self.replans = 0
         self.params = dataclasses.replace(
             params, position_tolerance=waypoint_tolerance, allow_reverse=False
@@ -133,6 +140,8 @@ class FollowPlannedPath(AvoidanceController):
         self._apply_at = 0.0
         self._next = 1
         self._law: GoToGoal | None = None
+        self._law_waypoint = 0
+        """The waypoint :attr:`_law` approaches."""
 
     def initialise(self) -> None:
         super().initialise()
@@ -166,6 +175,9 @@ class FollowPlannedPath(AvoidanceController):
         heading = math.atan2(y - robot.y, x - robot.x)
         if self._law is None:
             self._law = GoToGoal(self.params)
+        elif self._law_waypoint != self._next:  # a waypoint close to the last one is
+            self._law.new_goal()  # another goal all the same (campaign episode 375)
+        self._law_waypoint = self._next
         out = self._law.command(
             robot, Pose2(float(x), float(y), heading), goal_heading=False, dt=self.period
         )
@@ -208,6 +220,9 @@ class FollowPlannedPath(AvoidanceController):
             points = [robot.apply(obstacles.points)] if len(obstacles.points) else []
             if len(obstacles.virtual):
                 points.append(robot.apply(obstacles.virtual))
+            sweep = mover_sweep(obstacles.tracks, self.mover_horizon)
+            if len(sweep):
+                points.append(robot.apply(sweep))
             cloud = np.vstack(points) if points else np.zeros((0, 2))
             self._cloud = cloud
             placement = pose.placement or self.goal.nominal

@@ -391,6 +391,14 @@ class GoToGoal:
         self._goal_key: tuple[float, float, float | None] | None = None
         self._restart()
 
+    def new_goal(self) -> None:
+        """Start a fresh approach at the next :meth:`command` whatever its goal, keeping
+        the last command for the acceleration limits: a follower moving on to its next
+        waypoint, however close to the last one (within half the position tolerance
+        :meth:`command` takes a goal for the one it was already approaching, or had
+        reached)."""
+        self._goal_key = None
+
     def _restart(self) -> None:
         self._mode = _APPROACH
         self._stage = _ALIGN

@@ -92,3 +92,28 @@ def is_mover(track: TrackedObstacle) -> bool:
         and track.size <= MOVER_MAX_SIZE
         and math.hypot(*vouched_velocity(track)) >= MOVER_SPEED
     )
+
+
+def mover_sweep(
+    tracks: tuple[TrackedObstacle, ...],
+    horizon: float,
+    step: float = 0.5,
+    spacing: float = 0.1,
+) -> FloatArray:
+    """Where the movers (:func:`is_mover`) will be over the next ``horizon`` seconds, as
+    points (robot frame): each one's outline (a circle of its size, one point every
+    ``spacing`` metres) at its position now and every ``step`` seconds along its vouched
+    velocity (:func:`vouched_velocity`). For a planner whose map is a snapshot: a path
+    round these keeps off a mover's way for as long as it keeps its course."""
+    rings = []
+    for track in tracks:
+        if not is_mover(track):
+            continue
+        vx, vy = vouched_velocity(track)
+        times = np.arange(0.0, horizon + 1e-9, step)
+        centres = np.asarray(track.position) + np.outer(times, (vx, vy))  # (T, 2)
+        n = max(8, math.ceil(2.0 * math.pi * track.size / spacing))
+        angles = np.linspace(0.0, 2.0 * math.pi, n, endpoint=False)
+        ring = track.size * np.column_stack((np.cos(angles), np.sin(angles)))  # (n, 2)
+        rings.append((centres[:, None, :] + ring[None, :, :]).reshape(-1, 2))
+    return np.vstack(rings) if rings else np.zeros((0, 2))
