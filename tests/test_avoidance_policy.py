@@ -140,6 +140,23 @@ def test_no_progress_for_trapped_after_hands_over_to_the_planner():
     assert REPLAN not in modes
 
 
+def test_what_follows_the_planner_gets_a_trap_clock_of_its_own():
+    """A planner that ends (no path on the costmap, or the end of its path) leaves the
+    avoidance that follows a fresh ``trapped_after``: sharing the clock sent the robot
+    straight back to a planner that found no path, every half second, while a slow
+    trolley walked into it (campaign episode 487)."""
+    params = AvoidanceParams(trapped_after=5.0, hold_off=3.0)
+    policy = AvoidancePolicy(GOAL, params)
+    wall = track(1, 2.6, 0.0, size=0.9)  # closer than r_OA / 2: never held off
+    modes = [policy.decide(obstacles(0.5 * k, wall), pose()) for k in range(12)]
+    assert modes[-1] == REPLAN
+    policy.session.released, policy.session.reason = True, "no path on the costmap"
+    assert policy.decide(obstacles(6.0, wall), pose()) is None
+    after = [policy.decide(obstacles(6.5 + 0.5 * k, wall), pose()) for k in range(14)]
+    assert after[:10] == [SPIRAL] * 10  # 5 s of its own...
+    assert after[-1] == REPLAN  # ...before it is trapped again
+
+
 def test_a_big_static_obstacle_whose_centroid_slides_is_not_taken_for_a_mover():
     policy = AvoidancePolicy(GOAL, AvoidanceParams())
     truck = track(1, 4.0, 0.0, v=(0.0, 0.3), size=2.5, kind="blob")

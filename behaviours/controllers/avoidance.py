@@ -169,7 +169,9 @@ class AvoidanceParams:
     """An avoidance that brings the robot no ``progress`` closer to the goal for this long,
     with no obstacle around faster than ``fast_speed``, is trapped: the fallback planner
     takes over (s; inf: never). Avoidances that follow one another within ``hold_off``
-    share this clock, so a loop of engagements and releases ends in the planner too."""
+    share this clock, so a loop of engagements and releases ends in the planner too; the
+    one that follows the planner gets a clock of its own (a planner that found no path
+    must not be asked again at once)."""
     progress: float = 0.5
     """Distance gain towards the goal that counts as progress (m)."""
     stalled_after: float = 3.0
@@ -264,7 +266,11 @@ class AvoidancePolicy:
         speed = self._speeds
         if session.obstacle_id is not None:
             if session.released:
-                return self._end(now, session.reason)
+                planned = session.mode == REPLAN
+                self._end(now, session.reason)
+                if planned:  # what follows the planner gets a trap clock of its own
+                    self._ended_at = None
+                return None
             if session.mode == REPLAN:  # the planner ends it (session.released)...
                 # ...unless a mover faster than fast_speed comes: the planner plans round
                 # where slower ones will be, not where fast ones will
