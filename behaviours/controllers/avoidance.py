@@ -304,12 +304,11 @@ class AvoidancePolicy:
                 and session.stalled_since is not None
                 and now - session.stalled_since >= p.stalled_after
             )
-            if (now - session.best_at > p.trapped_after or stalled) and all(
-                speed[i] <= p.fast_speed for i in candidates
-            ):
+            no_progress = now - session.best_at > p.trapped_after
+            if (no_progress or stalled) and all(speed[i] <= p.fast_speed for i in candidates):
                 why = (
                     f"no progress towards the goal for {p.trapped_after:.0f} s"
-                    if now - session.best_at > p.trapped_after
+                    if no_progress
                     else "velocity obstacles found no way among obstacles that stand for "
                     f"{p.stalled_after:.0f} s"
                 )

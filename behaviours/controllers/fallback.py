@@ -145,6 +145,10 @@ class FollowPlannedPath(AvoidanceController):
 
     def initialise(self) -> None:
         super().initialise()
+        self._forget_plan()
+
+    def _forget_plan(self) -> None:
+        """Drop the plan (made, being made or followed): the next tick plans again."""
         self.path, self._future, self._next, self._law = None, None, 1, None
         self._known = None
 
@@ -163,8 +167,7 @@ class FollowPlannedPath(AvoidanceController):
             self._next += 1
         if self._blocked(obstacles, robot):
             self.replans += 1
-            self.path, self._future, self._next, self._law = None, None, 1, None
-            self._known = None
+            self._forget_plan()
             return self.brake(f"path blocked: planning again ({self.replans})")
         x, y = waypoints[self._next]
         if self._next == len(waypoints) - 1 and math.hypot(x - robot.x, y - robot.y) < (
