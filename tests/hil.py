@@ -32,14 +32,28 @@ def free_port(kind: int = socket.SOCK_STREAM) -> int:
         return s.getsockname()[1]
 
 
-def robot_file(folder: Path) -> Path:
-    """A robot file like missions/robots/hil-localhost.xml on ports nobody else uses."""
+STRICT_BASE_TIMEOUT_MS = 100.0
+"""The executive's base timeout of a real robot file (the DBC's TimeoutMs of
+BASE_HEARTBEAT): for the test whose subject is the executive's side of a lost link."""
+
+STALL_TOLERANT_BASE_TIMEOUT_MS = 300.0
+"""The executive's base timeout for every other rig. This shared 2-core VM sometimes
+stops *both* rig processes at once for 100-130 ms (a CI run's CAN log: neither the
+executive's heartbeat nor the base's went out for 106 and 129 ms, then each sent what
+it owed in a burst), which a real base, a microcontroller of its own, never does. The
+base's own watchdog stays at 100 ms in every rig, so a killed executive is still braked
+within the issue's bound."""
+
+
+def robot_file(folder: Path, base_timeout_ms: float = STRICT_BASE_TIMEOUT_MS) -> Path:
+    """A robot file like missions/robots/hil-localhost.xml on ports nobody else uses, the
+    executive's base timeout ``base_timeout_ms``."""
     path = folder / "robot.xml"
     path.write_text(
         f"""<?xml version="1.0" encoding="UTF-8"?>
 <robot xmlns="urn:walkaround:robot:1" id="hil-test">
   <can interface="udp_multicast" channel="239.74.163.2" port="{free_port(socket.SOCK_DGRAM)}"
-       watchdog-ms="100" base-timeout-ms="100"/>
+       watchdog-ms="100" base-timeout-ms="{base_timeout_ms:g}"/>
   <ptu unit="front" index="0"/>
   <ptu unit="rear" index="1"/>
   <ptu unit="ptz" index="2"/>
@@ -82,10 +96,16 @@ def walkaround(*args: object, **kwargs: object) -> subprocess.Popen:
 class Hil:
     """One simulator and the runs against it, in ``folder``."""
 
-    def __init__(self, folder: Path, scenario: Path = LAB_CLEAR, max_time: float = 400) -> None:
+    def __init__(
+        self,
+        folder: Path,
+        scenario: Path = LAB_CLEAR,
+        max_time: float = 400,
+        base_timeout_ms: float = STALL_TOLERANT_BASE_TIMEOUT_MS,
+    ) -> None:
         self.folder = folder
         self.scenario = scenario
-        self.robot = robot_file(folder)
+        self.robot = robot_file(folder, base_timeout_ms)
         self.sim_out = folder / "sim"
         self.sim = walkaround(
             "sim-robot", scenario, "--robot", self.robot, "--out", self.sim_out,

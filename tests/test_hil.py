@@ -19,7 +19,7 @@ import pytest
 
 from executive.robotlink.canbase import load_dbc
 from tests.conftest import MISSIONS
-from tests.hil import LAB_MISSION, Hil
+from tests.hil import LAB_MISSION, STRICT_BASE_TIMEOUT_MS, Hil
 
 # one rig at a time (two real-time processes each): on a 2-core machine the other pytest
 # worker's test is load enough beside it
@@ -135,7 +135,7 @@ def test_killed_run_the_base_brakes_and_resume_finishes(hil):
 
 
 def test_killed_simulator_the_run_stops_and_says_why(hil):
-    rig = hil()
+    rig = hil(base_timeout_ms=STRICT_BASE_TIMEOUT_MS)  # the executive's bound is the subject
     run = rig.start_run()
     rig.wait_for(lambda: (rig.run_out / "journal.jsonl").exists(), 30, "the run to start")
     time.sleep(5.0)
