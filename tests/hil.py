@@ -45,7 +45,7 @@ base's own watchdog stays at 100 ms in every rig, so a killed executive is still
 within the issue's bound."""
 
 
-def robot_file(folder: Path, base_timeout_ms: float = STRICT_BASE_TIMEOUT_MS) -> Path:
+def robot_file(folder: Path, base_timeout_ms: float) -> Path:
     """A robot file like missions/robots/hil-localhost.xml on ports nobody else uses, the
     executive's base timeout ``base_timeout_ms``."""
     path = folder / "robot.xml"
@@ -70,10 +70,10 @@ def robot_file(folder: Path, base_timeout_ms: float = STRICT_BASE_TIMEOUT_MS) ->
 REALTIME_BOOST = 10
 """The rig's processes run this many niceness steps above the test worker (down to -20)
 where the OS lets the test (root on CI), as a robot's executive and base firmware would
-run above the rest: on a 2-core machine with the other test worker busy, a 0.1 s gap of
-CPU lost the base heartbeat (the link-loss stop works as designed; the test is of the
-wires, not of a starved scheduler). Relative, not absolute: a CI whose processes all
-start at niceness -10 gave an absolute -10 no edge over the other worker."""
+run above the rest: the test is of the wires, not of a scheduler that starves them for
+the other test worker. Relative, not absolute: a CI whose processes all start at
+niceness -10 gave an absolute -10 no edge over the other worker. (A stall of the whole
+VM no priority helps against: :data:`STALL_TOLERANT_BASE_TIMEOUT_MS`.)"""
 
 
 def walkaround(*args: object, **kwargs: object) -> subprocess.Popen:
