@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 
 from executive.hil import TRUTH_FILE, TruthLog, judge_hil
+from executive.robotlink.canbase import DEFAULT_BASE_TIMEOUT, DEFAULT_WATCHDOG
 from sim2d.scenario import load_scenario
 from tests.conftest import MISSIONS, wait_until
 
@@ -32,7 +33,7 @@ def free_port(kind: int = socket.SOCK_STREAM) -> int:
         return s.getsockname()[1]
 
 
-STRICT_BASE_TIMEOUT_MS = 100.0
+STRICT_BASE_TIMEOUT_MS = 1000.0 * DEFAULT_BASE_TIMEOUT
 """The executive's base timeout of a real robot file (the DBC's TimeoutMs of
 BASE_HEARTBEAT): for the test whose subject is the executive's side of a lost link."""
 
@@ -53,7 +54,7 @@ def robot_file(folder: Path, base_timeout_ms: float) -> Path:
         f"""<?xml version="1.0" encoding="UTF-8"?>
 <robot xmlns="urn:walkaround:robot:1" id="hil-test">
   <can interface="udp_multicast" channel="239.74.163.2" port="{free_port(socket.SOCK_DGRAM)}"
-       watchdog-ms="100" base-timeout-ms="{base_timeout_ms:g}"/>
+       watchdog-ms="{1000.0 * DEFAULT_WATCHDOG:g}" base-timeout-ms="{base_timeout_ms:g}"/>
   <ptu unit="front" index="0"/>
   <ptu unit="rear" index="1"/>
   <ptu unit="ptz" index="2"/>
