@@ -596,3 +596,29 @@ def test_a_static_box_driven_round_stays_static():
             kinds.add(track.kind)
     assert kinds == {"blob", "line"}  # seen as an L, then as one face
     assert max(speeds) < 0.08  # below slow_speed: never taken for a mover
+
+
+def test_two_people_standing_side_by_side_stay_static_from_a_turning_robot():
+    """Two people standing shoulder to shoulder 2 m from a robot that turns on the spot,
+    one way then the other (campaign episode 976): a scan sees one of them as a circle,
+    the next sees both as one blob whose centroid lies between them. Read as motion, the
+    0.2 m jump made the pair a mover at up to 0.7 m/s, which kept taking the robot from
+    the planner to velocity obstacles for a minute. A view grown or shrunk beyond the
+    size tolerance is another set of points: it re-anchors the track."""
+    rng = np.random.default_rng(13)
+    clusterer = ScanClusterer(LENGTH, WIDTH)
+    tracker = ObstacleTracker(DangerParams(LENGTH, WIDTH))
+    scene = Scene(circles=[(1.97, -0.50, 0.3), (2.30, -1.03, 0.3)])
+    heading, speeds, sizes = math.radians(60.0), [], set()
+    for k in range(800):  # 20 s at 40 Hz, turning at 1 rad/s, the other way every 1.5 s
+        t = k / 40.0
+        omega = 1.0 if int(t / 1.5) % 2 == 0 else -1.0
+        robot = Pose2(0.0, 0.0, heading)
+        clusters = clusterer.detect(scan_pair(scene, robot, rng=rng, stamp=t))
+        sizes.update(np.round(clusters.size, 1))
+        tracks = tracker.update(clusters, robot, (0.0, omega))
+        if t >= 1.0:
+            speeds += [o.speed for o in tracks]
+        heading += omega / 40.0
+    assert max(sizes) > 0.6  # both as one cluster in some views
+    assert max(speeds) < 0.15  # below the avoidance policy's fast_speed

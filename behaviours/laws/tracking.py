@@ -47,15 +47,18 @@ updates are the joint update):
 Another shape assigned to a line track (the wall seen together with something against
 it: a centroid off the line by an unknown amount), a blob bigger than ``max_blob_size``
 (a part of a large structure, the aircraft's, whose visible part changes with the view),
-and a cluster of such a size of another kind than the track's last one (the middle of a
-face, then the centroid of an L: other points of the object) only re-anchor the track,
-on both axes: they say where it is, not how it moves. A circle track seen, cut by
-something in front, as another shape or with another radius (a gear leg's arc cut
-short and flattened into a line, its middle on the robot's side of the centre) is not
-measured at all: it is kept alive and its filter only predicts. So does the
-next view after such an anchor (for a line, across it): its difference from the anchor
-is the difference between two views, not a motion (a track alternating between a wall
-and a blob of the wall with a wheel against it).
+a cluster of such a size of another kind than the track's last one (the middle of a
+face, then the centroid of an L: other points of the object), a blob's centroid after
+its fitted box's centre or the other way round, and a blob or circle grown or shrunk by
+more than ``radius_tolerance`` since the last view (merged with a neighbour or split
+from one: two people side by side, one circle in a scan, both one blob in the next)
+only re-anchor the track, on both axes: they say where it is, not how it moves. A
+circle track seen, cut by something in front, as another shape or with another
+radius (a gear leg's arc cut short and flattened into a line, its middle on the robot's
+side of the centre) is not measured at all: it is kept alive and its filter only
+predicts. So does the next view after such an anchor (for a line, across it): its
+difference from the anchor is the difference between two views, not a motion (a track
+alternating between a wall and a blob of the wall with a wheel against it).
 
 A static wall thus keeps the zero along-line velocity it was born with, and a mover
 seen as a line keeps the velocity it had when its ends were seen: a box coming at the
@@ -261,7 +264,9 @@ class TrackerParams:
     size, so its measurement noise grows by ``partial_sigma`` times that size: it keeps
     the track alive without dragging it. Partial views: an occluded cluster; assigned to
     a circle track, a line, a blob, or a circle whose radius differs from the track's by
-    more than ``radius_tolerance`` times it.
+    more than ``radius_tolerance`` times it. On any other track, a blob or circle whose
+    size differs from the last view's by more than ``radius_tolerance`` times the larger
+    only re-anchors it (module docstring).
     ``initial_speed_sigma`` (m/s): velocity standard deviation of a new track.
     ``max_blob_size`` (m): a blob (neither line nor circle) bigger than this (enclosing
     radius about its tracked point: for a box, the centre of its fitted rectangle) is a
@@ -389,8 +394,17 @@ class ObstacleTracker:
         changed = kind != self.last_kind[rows]
         faces = changed & (kind != CIRCLE) & (self.last_kind[rows] != CIRCLE)
         # a blob's centroid, then its box's centre (or the other way round): other points
-        faces |= (kind == BLOB) & ~changed & (clusters.boxed[cols] != self.last_boxed[rows])
-        anchor = (not_circle & changed & (big | faces)) | (line_track[rows] & ~is_line[cols])
+        boxed = (kind == BLOB) & ~changed & (clusters.boxed[cols] != self.last_boxed[rows])
+        # a blob or circle grown or shrunk beyond the size tolerance since the last view:
+        # merged with a neighbour or split from one (two people standing side by side, one
+        # circle in a scan, one blob of both in the next): its tracked point is the middle
+        # of other points, 0.2 m away; read as motion, it made a standing pair a 0.5 m/s
+        # mover
+        size, last_size = clusters.size[cols], self.size[rows]
+        resized = np.abs(size - last_size) > p.radius_tolerance * np.maximum(size, last_size)
+        resized &= (kind != LINE) & (self.last_kind[rows] != LINE)
+        other_points = (changed & (big | faces)) | boxed | resized
+        anchor = (not_circle & other_points) | (line_track[rows] & ~is_line[cols])
         anchor |= (kind == BLOB) & big
         # lines on any track but a circle's are measured across the line, and along it only
         # when seen whole
