@@ -522,7 +522,12 @@ class _Builder:
         session, make = policy.session, self.options.avoider
         if make is None:  # velocity obstacles never slower than the navigation's cruise
             dodge = DodgeObstacle(
-                goal, session, m.platform, self.period, nu_min=m.navigation.cruise_speed
+                goal,
+                session,
+                m.platform,
+                self.period,
+                nu_min=m.navigation.cruise_speed,
+                slowdown=(m.safety.r_es, m.safety.r_oa_trigger),
             )
         else:
             dodge = make(goal, session, m.platform, self.period)

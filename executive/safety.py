@@ -137,7 +137,7 @@ from behaviours.laws.estop import OPERATOR as OPERATOR_ESTOP
 from behaviours.laws.estop import EStopLatch
 from behaviours.laws.freshness import Freshness
 from behaviours.laws.obstacles import is_mover, vouched_velocity
-from behaviours.laws.retreat import Retreat, corridor_clearance
+from behaviours.laws.retreat import SLOWDOWN_FLOOR, Retreat, corridor_clearance, slowdown_scale
 from executive.core.frames import AircraftPlacement, FloatArray
 from executive.core.model import Circle, ForbiddenZone, Frame, Mission
 from executive.core.records import (
@@ -558,7 +558,7 @@ class SafetyLayer:
         geofence_margin: float = 0.3,
         geofence_buffer: float = 0.05,
         escape_sweep: float = 0.05,
-        slowdown_floor: float = 0.2,
+        slowdown_floor: float = SLOWDOWN_FLOOR,
         mover_horizon: float = 3.0,
         horizon: float | None = None,
         event_hold: float = 0.5,
@@ -973,11 +973,7 @@ class SafetyLayer:
     def _slowdown(self, now: float, obstacles: Obstacles | None, v: float) -> float:
         r_es, r_oa = self.safety.r_es, self.safety.r_oa_trigger
         r_c = self._closing_clearance(obstacles, v) if obstacles is not None else math.inf
-        scale = 1.0
-        if r_c < r_oa:
-            scale = min(1.0, max(self.slowdown_floor, (r_c - r_es) / (r_oa - r_es)))
-        elif not r_c >= r_oa:  # NaN
-            scale = self.slowdown_floor
+        scale = float(slowdown_scale(r_c, r_es, r_oa, self.slowdown_floor))
         inside = scale < 1.0
         reported = self._slow_monitor.update(now, int(inside))
         if reported == 1:

@@ -22,6 +22,8 @@ from behaviours.controllers.avoidance import (
 from behaviours.goals import Goal
 from behaviours.keys import COMMAND, OBSTACLES, POSE
 from behaviours.laws.spiral import SpiralObstacle
+from executive.campaign.runner import episode_row
+from executive.campaign.spec import load_campaign
 from executive.compiler import CompileOptions, compile_mission
 from executive.core.frames import Pose2
 from executive.core.loader import load_mission
@@ -390,3 +392,15 @@ def test_the_velocity_obstacle_controller_reports_when_it_stands():
     bb.set(OBSTACLES.name, obstacles(0.7, track(1, 6.0, 3.0)), overwrite=True)
     dodge.tick_once()
     assert dodge.last.speed > 0.0 and session.stalled_since is None
+
+
+def test_campaign_episode_527_escapes_at_the_speed_it_will_get():
+    """Episode 527 of the shipped avoidance campaign: a trolley crossing at 0.11 m/s, a
+    vehicle parked beyond it. Velocity obstacles backed away from the trolley towards the
+    vehicle at a commanded 0.2 m/s that the safety layer's slowdown zone cut to 0.05 m/s,
+    and the trolley ran into the robot. Judged at the speed each way out really gets,
+    the escape keeps ahead: the episode completes with no collision."""
+    campaign = load_campaign(MISSIONS / "campaigns" / "avoidance-leg.xml")
+    row = episode_row(campaign, 527)
+    assert row["succeeded"], row["causes"]
+    assert row["collisions"] == []

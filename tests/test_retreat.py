@@ -9,7 +9,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from behaviours.controllers.motion import EStopHold
@@ -25,9 +25,11 @@ from behaviours.laws.retreat import (
     Retreat,
     corridor_clearance,
     covered_sides,
+    heading_clearances,
     movers,
     predicted_gap,
     retreat_side,
+    slowdown_scale,
 )
 from executive.campaign.runner import episode_row
 from executive.campaign.spec import load_campaign
@@ -53,6 +55,30 @@ def test_corridor_clearance_sees_only_its_side_and_width():
     beside = np.array([[0.2, W / 2 + R_ES + 0.01]])
     assert corridor_clearance(beside, FORWARD, L, W, R_ES) == math.inf
     assert corridor_clearance(np.zeros((0, 2)), BACKWARD, L, W, R_ES) == math.inf
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    points=st.lists(st.tuples(st.floats(-4, 4), st.floats(-4, 4)), max_size=12),
+    heading=st.floats(-math.pi, math.pi),
+)
+def test_heading_clearance_is_the_corridor_of_the_robot_turned_that_way(points, heading):
+    """The corridor a motion along ``heading`` drives into is the forward corridor of
+    the robot turned to it, and its backward corridor turned the other way round."""
+    pts = np.array(points, dtype=float).reshape(-1, 2)
+    c, s = math.cos(heading), math.sin(heading)
+    turned = pts @ np.array([[c, -s], [s, c]])  # the points in the turned robot's frame
+    assume(np.all(np.abs(turned[:, 0]) > 1e-9))  # abeam of the axle: on neither side
+    ahead = corridor_clearance(turned, FORWARD, L, W, R_ES)
+    both = heading_clearances(pts, np.array([heading, heading + math.pi]), L, W, R_ES)
+    assert both[0] == pytest.approx(ahead, abs=1e-9)
+    assert both[1] == pytest.approx(corridor_clearance(turned, BACKWARD, L, W, R_ES), abs=1e-9)
+
+
+def test_the_slowdown_ramps_from_the_floor_at_r_es_to_one_at_r_oa():
+    r_c = np.array([0.0, 0.6, 1.0, 1.8, 2.6, 3.0, math.inf, math.nan])
+    scale = slowdown_scale(r_c, 0.6, 2.6, 0.2)
+    assert scale == pytest.approx([0.2, 0.2, 0.2, 0.6, 1.0, 1.0, 1.0, 0.2])
 
 
 def test_lasers_decide_which_sides_may_be_backed_into():

@@ -208,3 +208,31 @@ def test_the_robot_passes_behind_a_walker_about_to_cross_its_way(side):
     for c, ahead in ((choice, False), (straight, True)):
         turn, u = np.array([c.turn_time]), c.velocity[None]
         assert crosses_ahead(np.zeros(2), turn, u, (walker,), 0.8, *look).tolist() == [ahead]
+
+
+def test_an_escape_the_slowdown_would_slow_is_judged_at_the_speed_it_will_get():
+    """A walker closes in from ahead at 0.5 m/s; straight away from it lies a parked
+    vehicle whose slowdown zone leaves a fifth of any speed that way. Judged at the
+    commanded 0.6 m/s that way out is clear; at the 0.12 m/s it will really get, the
+    walker catches it, so the robot escapes where it keeps its speed (campaign episode
+    527: a trolley caught a robot backing out at a quarter of its command)."""
+    params = HeadingVoParams(v_max=0.6, reverse_max=0.0)
+    walker = (MovingDisc((0.0, 2.5), (0.0, -0.5), 0.5),)
+    away = -0.5 * math.pi
+
+    def vehicle_behind(headings: np.ndarray) -> np.ndarray:
+        off = np.abs(np.remainder(headings - away + math.pi, 2.0 * math.pi) - math.pi)
+        return np.where(off < math.radians(30.0), 0.2, 1.0)
+
+    preferred = np.array([0.0, -0.6])
+    blind = choose_heading(np.zeros(2), 0.0, preferred, walker, params, 0.8)
+    assert blind.heading == pytest.approx(away % (2.0 * math.pi)) and blind.feasible
+    g = blind.speed * vehicle_behind(np.array([blind.heading]))[0]
+    slowed = np.array([[g * math.cos(blind.heading), g * math.sin(blind.heading)]])
+    turn = np.array([blind.turn_time])
+    assert turn_then_go_contact(np.zeros(2), turn, slowed, walker, 0.8, params.horizon)[0] < 4.0
+
+    seen = choose_heading(np.zeros(2), 0.0, preferred, walker, params, 0.8, None, vehicle_behind)
+    assert seen.feasible and vehicle_behind(np.array([seen.heading]))[0] == 1.0
+    turn, u = np.array([seen.turn_time]), seen.velocity[None]
+    assert turn_then_go_contact(np.zeros(2), turn, u, walker, 0.8, params.horizon)[0] == math.inf

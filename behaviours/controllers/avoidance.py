@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -28,6 +29,7 @@ from behaviours.base import Controller, Guard
 from behaviours.goals import Goal
 from behaviours.keys import COMMAND, OBSTACLES, POSE
 from behaviours.laws.rate_limit import RateLimiter, RateLimits
+from behaviours.laws.retreat import heading_clearances, slowdown_scale
 from behaviours.laws.spiral import (
     SpiralAvoidance,
     SpiralObstacle,
@@ -43,7 +45,7 @@ from behaviours.laws.velocity_obstacles import (
     heading_command,
     time_to_collision,
 )
-from executive.core.frames import Pose2
+from executive.core.frames import FloatArray, Pose2
 from executive.core.model import Platform
 from executive.core.records import (
     Danger,
@@ -676,6 +678,11 @@ class DodgeObstacle(AvoidanceController):
     that a walker never comes within r_ES: the e-stop would hold the robot still in its
     way.
 
+    Slowdown: with ``slowdown`` = (r_ES, r_OA-trigger), every candidate is judged at the
+    speed the safety layer's slowdown zone will leave it along its heading
+    (:func:`behaviours.laws.retreat.slowdown_scale` of the corridor it drives into): an
+    escape towards a parked vehicle is slower than commanded (campaign episode 527).
+
     Velocity memory: a track slower than it was within the last ``velocity_memory``
     seconds keeps that speed (in the direction it moves now, or the old velocity if it
     seems to stand). When a chaser passes a static obstacle the two merge into one
@@ -698,10 +705,12 @@ class DodgeObstacle(AvoidanceController):
         mover_margin: float = 0.4,
         mover_speed: float = 0.3,
         velocity_memory: float = 1.5,
+        slowdown: tuple[float, float] | None = None,
         name: str = "velocity obstacles",
     ) -> None:
         super().__init__(goal, session, platform, period, name)
         self.velocity_memory = velocity_memory
+        self.slowdown = slowdown
         self._fastest: dict[int | None, tuple[float, tuple[float, float]]] = {}
         self.platform, self.nu_min = platform, nu_min
         self.escape_factor, self.reach = escape_factor, reach
@@ -779,6 +788,7 @@ class DodgeObstacle(AvoidanceController):
             params,
             self.radius,
             previous,
+            self._speed_scale(obstacles, robot.theta),
         )
         self.last = choice
         if choice.speed > 1e-6:
@@ -794,6 +804,23 @@ class DodgeObstacle(AvoidanceController):
             f"{' reversing' if choice.reverse else ''}, "
             f"{'clear' if choice.feasible else f'contact in {choice.time_to_collision:.1f} s'}",
         )
+
+    def _speed_scale(
+        self, obstacles: Obstacles, theta: float
+    ) -> Callable[[FloatArray], FloatArray] | None:
+        """The safety layer's slowdown factor along travel headings in A (class
+        docstring), or None without ``slowdown`` or without a return near enough to slow
+        anything."""
+        if self.slowdown is None or not obstacles.closest < self.slowdown[1]:
+            return None
+        r_es, r_oa = self.slowdown
+        points, length, width = obstacles.points, self.platform.length, self.platform.width
+
+        def scale(headings: FloatArray) -> FloatArray:
+            clear = heading_clearances(points, headings - theta, length, width, r_es)
+            return slowdown_scale(clear, r_es, r_oa)
+
+        return scale
 
     def _inflated(self, disc: MovingDisc) -> MovingDisc:
         """``disc`` grown by the mover margin for its speed."""

@@ -37,7 +37,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from behaviours.laws.obstacles import footprint_distances, is_mover, vouched_velocity
+from behaviours.laws.obstacles import (
+    footprint_distances,
+    footprint_distances_xy,
+    is_mover,
+    vouched_velocity,
+)
 from executive.core.frames import FloatArray
 from executive.core.model import LaserSpec, Mission
 from executive.core.records import TrackedObstacle
@@ -84,6 +89,41 @@ def corridor_clearance(
     if len(ahead) == 0:
         return math.inf
     return float(footprint_distances(ahead, length, width).min())
+
+
+SLOWDOWN_FLOOR = 0.2
+"""The slowdown zone's lowest speed factor (:func:`slowdown_scale`): obstacle avoidance
+can still creep round an obstacle just beyond r_ES."""
+
+
+def slowdown_scale(
+    clearance: FloatArray | float, r_es: float, r_oa: float, floor: float = SLOWDOWN_FLOOR
+) -> FloatArray:
+    """The slowdown zone's speed factor for the clearance ``r_c`` of the corridor a motion
+    drives into (seed lines 1536-1542's zone between r_ES and r_OA-trigger, our linear
+    ramp): 1 at and beyond r_OA-trigger, ``(r_c - r_ES) / (r_OA - r_ES)`` within it, never
+    below ``floor``; ``floor`` for an unknown (NaN) clearance. Broadcasts."""
+    r_c = np.asarray(clearance, dtype=float)
+    ramp = np.clip((r_c - r_es) / (r_oa - r_es), floor, 1.0)
+    return np.where(r_c >= r_oa, 1.0, np.where(np.isnan(r_c), floor, ramp))
+
+
+def heading_clearances(
+    points: FloatArray, headings: FloatArray, length: float, width: float, r_es: float
+) -> FloatArray:
+    """:func:`corridor_clearance` of the corridor ahead of a robot turned to each of
+    ``headings`` (rad, in the robot frame of ``points``) (K,): where a motion along that
+    heading, forwards or backwards (the footprint and the corridor are symmetric), drives
+    into. inf where that corridor holds no return."""
+    h = np.asarray(headings, dtype=float)[:, None]
+    if len(points) == 0:
+        return np.full(len(h), math.inf)
+    c, s = np.cos(h), np.sin(h)
+    x = points[:, 0] * c + points[:, 1] * s  # (K, N): the turned robot's frame
+    y = points[:, 1] * c - points[:, 0] * s
+    inside = (x > 0.0) & (np.abs(y) <= 0.5 * width + r_es)
+    d = footprint_distances_xy(x, y, length, width)
+    return np.where(inside, d, math.inf).min(axis=1)
 
 
 def covered_sides(

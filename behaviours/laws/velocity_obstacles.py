@@ -37,6 +37,7 @@ the heading-lead model above, looking only about the current heading, does not.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -400,9 +401,17 @@ def choose_heading(
     params: HeadingVoParams,
     robot_radius: float,
     previous: FloatArray | None = None,
+    speed_scale: Callable[[FloatArray], FloatArray] | None = None,
 ) -> HeadingChoice:
     """The velocity outside every velocity obstacle closest to ``preferred``, for a robot
     that must turn before it drives.
+
+    ``speed_scale`` maps travel headings (K,) to the factor by which what executes a
+    command will scale a speed along them (the safety layer's slowdown zone before a
+    parked vehicle): each candidate is judged at the ground velocity it will really have,
+    and its chosen ``speed`` stays the commanded one. Without it an escape at 0.2 m/s
+    from a 0.12 m/s trolley, slowed to 0.05 m/s towards a vehicle behind, was taken for
+    clear (campaign episode 527).
 
     Candidates: ``n_heading`` headings round the circle (and the preferred one) times
     ``n_speed`` speeds in [0, v_max] (and the preferred one), driven forwards after
@@ -434,7 +443,8 @@ def choose_heading(
         turn = np.concatenate((turn, (math.pi - np.abs(o[back])) / p.omega_max))
         reverse = np.concatenate((reverse, np.ones(len(rs), dtype=bool)))
     turn = np.where(s > 0.0, turn, 0.0)  # standing still needs no turn
-    u = np.column_stack((s * np.cos(h), s * np.sin(h)))
+    ground = s if speed_scale is None else s * speed_scale(h)  # the speed it will get
+    u = np.column_stack((ground * np.cos(h), ground * np.sin(h)))
     contact = turn_then_go_contact(robot_xy, turn, u, obstacles, robot_radius, p.horizon)
     cost = np.einsum("ki,ki->k", u - preferred, u - preferred) / (p.v_max * p.v_max)
     cost += p.turn_weight * turn * turn + p.reverse_weight * reverse
