@@ -10,7 +10,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from behaviours.keys import COMMAND, POSE, SENSOR_FRAME
@@ -25,7 +25,8 @@ WHOLE_CIRCLE = (-math.pi, math.pi)
 def _turn_from(
     start_pan: float, limits: tuple[float, float], turn: float = 0.0
 ) -> tuple[float, float]:
-    """Closed loop for half the item timeout, the robot standing on the checkpoint turned
+    """Closed loop for as long as the node has to aim and still look before the item
+    times out (``item_timeout - look_time``), the robot standing on the checkpoint turned
     by ``turn`` (rad): the unit integrates the node's pan rate (clamped by its rate and
     its limits, as sim2d's units do) from ``start_pan``; returns (final pan, the pan that
     aims at the item)."""
@@ -42,7 +43,7 @@ def _turn_from(
     )
     aim_pan, aim_tilt = pan_tilt_towards(unit.mount, unit.mount_yaw, target)
     pan = start_pan
-    for _ in range(round(run.node.item_timeout / DT) // 2):
+    for _ in range(round((run.node.item_timeout - run.node.look_time) / DT)):
         frame = SensorFrame(run.t, pan_tilt={unit.id: PanTilt(run.t, pan, aim_tilt)})
         run.bb.set(SENSOR_FRAME.name, frame, overwrite=True)
         run.bb.set(POSE.name, dataclasses.replace(run.pose, stamp=run.t), overwrite=True)
@@ -56,6 +57,7 @@ def _turn_from(
 
 @settings(max_examples=25, deadline=None)
 @given(st.floats(-math.pi, math.pi), st.floats(-math.pi, math.pi))
+@example(3.0, math.pi)  # the aim on one limit, the unit near the other: 352 deg to turn
 def test_a_whole_circle_unit_reaches_its_aim_from_any_pan(start: float, turn: float) -> None:
     pan, aim = _turn_from(start, WHOLE_CIRCLE, turn)
     assert abs(pan - aim) < math.radians(1.0), (start, pan, aim)

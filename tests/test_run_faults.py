@@ -176,6 +176,14 @@ def test_a_run_into_an_old_report_leaves_nothing_stale_and_writes_through_no_lin
 
 
 # -- §3: signals, in a real process -----------------------------------------------------------
+def _default_signals() -> None:
+    """In the child: SIGINT, SIGTERM and SIGHUP as a terminal's session gives them. A
+    run keeps a signal its parent ignores ignored (``nohup``), so under a test runner
+    started with ``nohup`` SIGHUP would never reach it."""
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        signal.signal(sig, signal.SIG_DFL)
+
+
 def _start(out: Path, *extra: str) -> subprocess.Popen:
     return subprocess.Popen(
         [sys.executable, "-m", "executive.cli", "dry-run", str(LAB), "--out", str(out), *extra],
@@ -183,6 +191,7 @@ def _start(out: Path, *extra: str) -> subprocess.Popen:
         stderr=subprocess.PIPE,
         text=True,
         cwd=REPO,
+        preexec_fn=_default_signals,
     )
 
 
