@@ -51,6 +51,42 @@ clock."""
 TRUTH_RATE_HZ = 10.0
 
 
+class FirmwareClock:
+    """The base firmware's clock: ``wall`` less the time this process did not run.
+
+    A real base is a microcontroller of its own: when the computer beside it stalls, its
+    watchdog keeps time and never brakes for a stall it did not live through. Here the
+    base is a thread sharing the machine (and a virtual machine's stalls) with the
+    executive, so a stall of the machine silences both at once and then shows the
+    firmware a heartbeat gap the executive never made (a CI's CAN log: both sides silent
+    for 106 and 129 ms together, then the base braked on its 100 ms watchdog). A gap
+    between two readings longer than ``max_gap`` is such time: all of it beyond
+    ``max_gap`` is left out, and counted (:attr:`stalls`, :attr:`stalled_s`). The
+    serving loop and the base's timer read the clock every 10 and 20 ms, so a heartbeat
+    that really stops (a killed executive) still trips the watchdog on time.
+    """
+
+    def __init__(self, wall: Callable[[], float], max_gap: float = 0.05) -> None:
+        self._wall = wall
+        self.max_gap = max_gap
+        self._lock = threading.Lock()
+        self._last = wall()
+        self._lost = 0.0
+        self.stalls = 0
+        self.stalled_s = 0.0
+
+    def __call__(self) -> float:
+        with self._lock:
+            now = self._wall()
+            gap = now - self._last
+            if gap > self.max_gap:
+                self._lost += gap - self.max_gap
+                self.stalls += 1
+                self.stalled_s += gap - self.max_gap
+            self._last = now
+            return now - self._lost
+
+
 def _port_of(url: str) -> int:
     """The port of ``socket://host:port``."""
     return int(url.rsplit(":", 1)[1])
@@ -61,8 +97,12 @@ class _Wires:
 
     def __init__(self, config: RobotConfig, clock: Callable[[], float]) -> None:
         self.bus = can.Bus(**config.can.bus_kwargs())
+        self.firmware_clock = FirmwareClock(clock)
         self.firmware = SimulatedBaseFirmware(
-            self.bus, clock=clock, watchdog=config.can.watchdog, ptu_units=_units(config)
+            self.bus,
+            clock=self.firmware_clock,
+            watchdog=config.can.watchdog,
+            ptu_units=_units(config),
         )
         self.lasers = {laser.id: ScipServer(port=laser.port) for laser in config.lasers}
         self.gps = None
@@ -315,9 +355,12 @@ def serve(
             wires.close()
             gc.unfreeze()
     lag = clock() - sim.time
+    stalls = wires.firmware_clock
     return (
         f"sim-robot: {sim.time:.1f} s served ({lag:+.2f} s behind real time), "
-        f"{collisions} collisions; truth in {out / TRUTH_FILE}"
+        f"{collisions} collisions, {stalls.stalls} stalls of this process "
+        f"({stalls.stalled_s:.2f} s, not counted by the base's watchdog); "
+        f"truth in {out / TRUTH_FILE}"
     )
 
 

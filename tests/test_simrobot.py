@@ -21,7 +21,7 @@ from executive.robotlink.canbase import (
     SimulatedBaseFirmware,
     load_dbc,
 )
-from executive.simrobot import BaseTimer
+from executive.simrobot import BaseTimer, FirmwareClock
 from tests.conftest import wait_until
 
 DB = load_dbc()
@@ -141,3 +141,53 @@ def test_a_base_that_cannot_send_ends_the_simulator(base):
         return False
 
     wait_until(raised, 10.0, "the failure to surface")
+
+
+class _Wall:
+    """A wall clock the test moves by hand."""
+
+    def __init__(self) -> None:
+        self.t = 0.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def test_a_stall_of_the_whole_machine_does_not_trip_the_base_watchdog():
+    """The firmware's clock leaves out what this process did not live: a 130 ms stall of
+    the machine (both processes silent, as a CI's CAN log showed) is not a 130 ms gap in
+    the executive's heartbeat. A heartbeat that really stops, the clock read every 20 ms
+    by the base's timer, still trips the 100 ms watchdog within one reading of it."""
+    wall = _Wall()
+    clock = FirmwareClock(wall)
+    channel = "fwclock-" + uuid.uuid4().hex
+    exec_bus, base_bus = VirtualBus(channel=channel), VirtualBus(channel=channel)
+    link = CanBaseLink(exec_bus, clock=wall, db=DB)
+    firmware = SimulatedBaseFirmware(base_bus, DB, clock=clock, watchdog=0.1)
+    try:
+
+        def cycle(dt: float) -> None:
+            wall.t += dt
+            link.send(VelocityCommand(0.3, 0.0))
+            firmware.poll()
+
+        for _ in range(10):
+            cycle(0.02)
+        assert firmware.command().v == pytest.approx(0.3)
+        cycle(0.13)  # the machine stood still for 130 ms, then both ran on
+        assert firmware.watchdog_fired_at is None
+        assert clock.stalls == 1 and clock.stalled_s == pytest.approx(0.08)
+        for _ in range(5):
+            cycle(0.02)
+        assert firmware.command().v == pytest.approx(0.3)
+        silent_from = clock()
+        for _ in range(10):  # the executive is killed; the base's timer reads on
+            wall.t += 0.02
+            firmware.poll()
+        assert firmware.watchdog_fired_at is not None
+        assert firmware.watchdog_fired_at - silent_from <= 0.1 + 0.02 + 1e-9
+        assert firmware.command().v == 0.0
+    finally:
+        link.close()
+        for bus in (exec_bus, base_bus):
+            bus.shutdown()
