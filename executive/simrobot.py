@@ -71,20 +71,19 @@ class FirmwareClock:
         self.max_gap = max_gap
         self._lock = threading.Lock()
         self._last = wall()
-        self._lost = 0.0
         self.stalls = 0
         self.stalled_s = 0.0
+        """The time left out, s."""
 
     def __call__(self) -> float:
         with self._lock:
             now = self._wall()
             gap = now - self._last
             if gap > self.max_gap:
-                self._lost += gap - self.max_gap
                 self.stalls += 1
                 self.stalled_s += gap - self.max_gap
             self._last = now
-            return now - self._lost
+            return now - self.stalled_s
 
 
 def _port_of(url: str) -> int:
