@@ -479,13 +479,16 @@ class _Builder:
         return Sequence(
             f"navigate {label}",
             memory=False,
-            children=[self.trap(label, goal, checkpoint), guards],
+            children=[self.trap(label, goal, tolerance[0], checkpoint), guards],
         )
 
-    def trap(self, label: str, goal: Goal, checkpoint: str | None) -> py_trees.behaviour.Behaviour:
-        """The navigation's trap guard; with an operator at hand, on the way to a
-        checkpoint, a trap asks them rather than failing."""
-        trap = NotTrapped(goal, self.options.trapped_after)
+    def trap(
+        self, label: str, goal: Goal, tolerance: float, checkpoint: str | None
+    ) -> py_trees.behaviour.Behaviour:
+        """The navigation's trap guard (within ``tolerance`` m of the goal the robot is
+        there); with an operator at hand, on the way to a checkpoint, a trap asks them
+        rather than failing."""
+        trap = NotTrapped(goal, self.options.trapped_after, at_goal=tolerance, towards=label)
         if checkpoint is None or not self.options.ask_operator:
             return trap
         ask = AskWhenTrapped(trap, checkpoint, self.skips, name=f"ask operator {label}")

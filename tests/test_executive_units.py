@@ -71,6 +71,38 @@ def test_not_trapped_fails_after_the_period_without_progress():
     assert guard.status == S.FAILURE and "no progress" in guard.feedback_message
 
 
+def test_not_trapped_fails_a_robot_that_shuttles_just_short_of_its_goal():
+    # campaign a320-busy-apron episode 17: every reverse into the servo start ended in an
+    # e-stop and a retreat, 0.11-0.34 m short, for an hour; being near is not progress
+    bb = blackboard_writer(POSE)
+    guard = NotTrapped(
+        Goal(Pose2(10.0, 0.0, 0.0)), period=20.0, at_goal=0.02, towards="CP10 servo start"
+    )
+    statuses = []
+    for t in np.arange(0.0, 40.0, 0.1):
+        d = 0.225 + 0.115 * math.cos(2 * math.pi * t / 8.0)  # 0.34 -> 0.11 -> 0.34 every 8 s
+        bb.set(POSE.name, _pose(10.0 - d, 0.0, t=t), overwrite=True)
+        guard.tick_once()
+        statuses.append(guard.status)
+    assert statuses[-1] == S.FAILURE
+    message = "towards CP10 servo start for 40 s (limit 20 s; 0.11 m from it at the closest)"
+    assert message in guard.feedback_message
+    assert statuses.index(S.FAILURE) == 201  # the first tick after the 20 s period
+
+
+def test_not_trapped_leaves_the_final_turn_at_the_goal_alone():
+    bb = blackboard_writer(POSE)
+    guard = NotTrapped(Goal(Pose2(10.0, 0.0, 0.0)), period=5.0, at_goal=0.02)
+    for t in np.arange(0.0, 3.0, 0.1):  # the last 0.3 m at 0.1 m/s: progress by arriving
+        bb.set(POSE.name, _pose(9.7 + 0.1 * t, 0.0, t=t), overwrite=True)
+        guard.tick_once()
+        assert guard.status == S.SUCCESS
+    for t in np.arange(3.0, 12.0, 0.1):  # 1.5 cm off, turning (or a servo settling)
+        bb.set(POSE.name, _pose(9.985, 0.0, theta=0.1 * (t - 3.0), t=t), overwrite=True)
+        guard.tick_once()
+        assert guard.status == S.SUCCESS
+
+
 def test_reached_needs_position_and_heading():
     bb = blackboard_writer(POSE)
     guard = Reached(Goal(Pose2(1.0, 1.0, 0.5)), 0.05, math.radians(2))

@@ -128,9 +128,14 @@ class PoseNotGoodEnough(Guard):
 class NotTrapped(Guard):
     """FAILURE once the robot has made no progress towards its goal for ``period`` s.
 
-    Progress is a decrease of the distance to the goal by at least ``min_progress`` m
-    (or the goal reached). Placed in front of a navigation, its FAILURE fails the
-    navigation with the reason in its feedback.
+    Progress is a decrease of the best distance to the goal so far by ``min_progress`` m,
+    or by what is left of it down to ``at_goal`` (the navigation's position tolerance), or
+    being within ``at_goal``: there what remains (the turn to the goal heading, a servo
+    settling) is the navigation's own business. Merely being near the goal is no progress:
+    a robot that shuttles 0.1-0.3 m short of its goal because every approach ends in an
+    e-stop and a retreat (campaign a320-busy-apron, episode 17: an hour of it) is trapped.
+    Placed in front of a navigation, its FAILURE fails the navigation with the reason in
+    its feedback.
     """
 
     reads = (POSE,)
@@ -140,15 +145,20 @@ class NotTrapped(Guard):
         goal: Goal,
         period: float,
         min_progress: float = 0.25,
+        at_goal: float = 0.0,
+        towards: str = "the goal",
         name: str = "not trapped?",
     ) -> None:
         super().__init__(name)
         self.goal = goal
         self.period = period
         self.min_progress = min_progress
+        self.at_goal = at_goal
+        self.towards = towards
         self._best: float | None = None
         self._since = 0.0
         self._seen = -math.inf
+        self._closest = math.inf
 
     def restart(self, now: float) -> None:
         """Start the period again from ``now`` (the operator said wait, or took over)."""
@@ -166,10 +176,15 @@ class NotTrapped(Guard):
         if now - self._seen > 1.0:
             self._best = None
         self._seen = now
-        if self._best is None or d < self._best - self.min_progress or d < self.min_progress:
+        self._closest = d if self._best is None else min(self._closest, d)
+        best = self._best
+        if best is None or d <= self.at_goal or d < max(best - self.min_progress, self.at_goal):
             self._best, self._since = d, now
         stuck = now - self._since
-        self.feedback_message = f"no progress for {stuck:.0f} s (limit {self.period:.0f} s)"
+        self.feedback_message = (
+            f"no progress towards {self.towards} for {stuck:.0f} s (limit {self.period:.0f} s; "
+            f"{self._closest:.2f} m from it at the closest)"
+        )
         return Status.FAILURE if stuck > self.period else Status.SUCCESS
 
 
