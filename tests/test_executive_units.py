@@ -103,6 +103,25 @@ def test_not_trapped_leaves_the_final_turn_at_the_goal_alone():
         assert guard.status == S.SUCCESS
 
 
+def test_every_navigation_trap_is_at_its_goal_where_the_navigation_is():
+    from executive.compiler import CompileOptions, compile_mission
+
+    mission = load_mission(MISSIONS / "a320" / "preflight.xml")
+    for ask in (False, True):
+        root = compile_mission(mission, CompileOptions(ask_operator=ask)).root
+        checked = 0
+        for nav in root.iterate():
+            if not nav.name.startswith("navigate "):
+                continue
+            label = nav.name.removeprefix("navigate ")
+            (trap,) = (n for n in nav.iterate() if isinstance(n, NotTrapped))
+            (reached,) = (n for n in nav.iterate() if n.name == "reached?")
+            assert trap.at_goal == reached.position_tolerance > 0.0
+            assert trap.goal is reached.goal and trap.towards == label
+            checked += 1
+        assert checked > 2 * len(mission.checkpoints)  # servo starts, vias, P, station
+
+
 def test_reached_needs_position_and_heading():
     bb = blackboard_writer(POSE)
     guard = Reached(Goal(Pose2(1.0, 1.0, 0.5)), 0.05, math.radians(2))
