@@ -36,6 +36,7 @@ import numpy as np
 from bench_sim import CONTROL_HZ, RouteFollower
 
 from behaviours.laws.laser_clusters import KIND_NAMES, ScanClusterer
+from behaviours.laws.obstacles import MOVER_SPEED, is_mover
 from behaviours.laws.tracking import DangerParams, ObstacleTracker
 from executive.core.frames import Pose2
 from executive.core.records import LaserScan, TrackedObstacle
@@ -100,6 +101,9 @@ class TrackJudge:
         self.position_error: list[float] = []
         self.velocity_error: list[float] = []
         self.static_speed: list[float] = []
+        self.static_moving = 0
+        """Samples of static structure that count as moving (:func:`is_mover`): what
+        makes avoidance dodge a wall."""
 
     def judge(self, tracks: Sequence[TrackedObstacle], pose: Pose2, movers: list[Mover]) -> None:
         rot = pose.rotation()
@@ -115,8 +119,17 @@ class TrackJudge:
                     self.velocity_error.append(math.hypot(vx - mvx, vy - mvy))
             else:
                 self.static_speed.append(math.hypot(vx, vy))
+                self.static_moving += is_mover(track)
 
     def lines(self) -> list[str]:
+        static = len(self.static_speed)
+        share = self.static_moving / static if static else 0.0
+        tail = [
+            "",
+            f"static structure counted as moving (vouched speed >= {MOVER_SPEED} m/s): "
+            f"{self.static_moving} of {static} samples ({100 * share:.2f} %), fastest "
+            f"{max(self.static_speed, default=0.0):.3f} m/s",
+        ]
         out = [f"| {'tracking':<44} | {'samples':>8} | {'mean':>8} | {'p50':>8} | {'p99':>8} |"]
         out.append(f"|{'-' * 46}|{'-' * 10}|{'-' * 10}|{'-' * 10}|{'-' * 10}|")
         for name, values, unit in (
@@ -132,7 +145,7 @@ class TrackJudge:
                 f"| {name + ' (' + unit + ')':<44} | {len(values):>8} | {mean:8.3f} | "
                 f"{p50:8.3f} | {p99:8.3f} |"
             )
-        return out
+        return out + tail
 
 
 def main() -> None:

@@ -622,3 +622,34 @@ def test_two_people_standing_side_by_side_stay_static_from_a_turning_robot():
         heading += omega / 40.0
     assert max(sizes) > 0.6  # both as one cluster in some views
     assert max(speeds) < 0.15  # below the avoidance policy's fast_speed
+
+
+def test_a_trolley_long_seen_face_on_is_tracked_once_it_turns_and_rolls():
+    """A trolley stands face-on to the robot for 5 s (a line in every scan), is turned
+    45 deg in a second and rolls away at 0.55 m/s, seen corner-on (a blob in every scan;
+    campaign episode 203). The track's kind is a vote over its whole life, so it stayed a
+    line track for as long as the trolley had stood; a line track seen as another shape
+    only re-anchored, scan after scan, and the trolley rolled on at a tracked 0 m/s for
+    6 s, into the robot. The change of kind re-anchors once; the blobs after it are
+    measured."""
+    rng = np.random.default_rng(3)
+    clusterer = ScanClusterer(LENGTH, WIDTH)
+    tracker = ObstacleTracker(DangerParams(LENGTH, WIDTH))
+    robot = Pose2(0.0, 0.0, 0.0)
+    kinds, speeds = [], []
+    for k in range(360):  # 9 s at 40 Hz
+        t = k / 40.0
+        heading = math.pi / 2 - math.pi / 4 * min(1.0, max(0.0, t - 5.0))  # face-on, turned
+        s = 0.55 * max(0.0, t - 6.0)  # rolled along its heading
+        trolley = Scene.from_box(
+            4.0 + s * math.cos(heading), s * math.sin(heading), heading, 1.2, 0.8
+        )
+        clusters = clusterer.detect(scan_pair(trolley, robot, rng=rng, stamp=t))
+        tracks = tracker.update(clusters, robot)
+        kinds.append(tuple(int(kind) for kind in clusters.kind))
+        if t >= 7.0:
+            (track,) = tracks
+            speeds.append(track.speed)
+    assert set(kinds[:200]) == {(LINE,)}  # face-on while it stands
+    assert set(kinds[240:]) == {(BLOB,)}  # corner-on while it rolls
+    assert min(speeds) > 0.45 and max(speeds) < 0.65

@@ -45,7 +45,11 @@ updates are the joint update):
   first whole views after a long partial one cannot turn noise into speed).
 
 Another shape assigned to a line track (the wall seen together with something against
-it: a centroid off the line by an unknown amount), a blob bigger than ``max_blob_size``
+it: a centroid off the line by an unknown amount; a cone's arc after its face) except a
+blob seen whole after a blob (the object itself: a track's kind is a vote over its whole
+life, and a trolley that stood face-on, a line for seconds, then turned and rolled
+corner-on, a blob in every scan, was re-anchored scan after scan at 0 m/s into the
+robot, campaign episode 203), a blob bigger than ``max_blob_size``
 (a part of a large structure, the aircraft's, whose visible part changes with the view),
 a cluster of such a size of another kind than the track's last one (the middle of a
 face, then the centroid of an L: other points of the object), a blob's centroid after
@@ -386,8 +390,8 @@ class ObstacleTracker:
         # centre of a fitted arc: other points of it), a box seen as a line after a blob
         # or the other way round (the middle of one face, then the centre of the box:
         # half its other side apart, a trolley turning from its face to its corner), a
-        # line track seen as another shape (the wall with something against it), or a
-        # big blob (part of a large structure, its visible part changing)
+        # line track seen as another shape (below), or a big blob (part of a large
+        # structure, its visible part changing)
         kind = clusters.kind[cols]
         not_circle = ~circle_track[rows, 0]
         big = clusters.size[cols] > p.max_blob_size
@@ -404,7 +408,11 @@ class ObstacleTracker:
         resized = np.abs(size - last_size) > p.radius_tolerance * np.maximum(size, last_size)
         resized &= (kind != LINE) & (self.last_kind[rows] != LINE)
         other_points = (changed & (big | faces)) | boxed | resized
-        anchor = (not_circle & other_points) | (line_track[rows] & ~is_line[cols])
+        # a line track seen as another shape: the wall with something against it, a cone's
+        # arc; a blob seen whole after a blob is the object itself (a trolley that stood
+        # face-on turned corner-on; its kind is a vote over its whole life)
+        blob_again = (kind == BLOB) & (self.last_kind[rows] == BLOB) & ~clusters.occluded[cols]
+        anchor = (not_circle & other_points) | (line_track[rows] & ~is_line[cols] & ~blob_again)
         anchor |= (kind == BLOB) & big
         # lines on any track but a circle's are measured across the line, and along it only
         # when seen whole
