@@ -85,9 +85,22 @@ def test_not_trapped_fails_a_robot_that_shuttles_just_short_of_its_goal():
         guard.tick_once()
         statuses.append(guard.status)
     assert statuses[-1] == S.FAILURE
-    message = "towards CP10 servo start for 40 s (limit 20 s; 0.11 m from it at the closest)"
+    message = (
+        "towards CP10 servo start for 40 s (limit 20 s; 0.34 m from it, 0.11 m at the closest)"
+    )
     assert message in guard.feedback_message
     assert statuses.index(S.FAILURE) == 201  # the first tick after the 20 s period
+
+
+def test_not_trapped_reports_the_closest_approach_since_its_last_progress():
+    bb = blackboard_writer(POSE)
+    guard = NotTrapped(Goal(Pose2(10.0, 0.0, 0.0)), period=5.0, at_goal=0.02)
+    for t in np.arange(0.0, 12.0, 0.1):  # at the goal, then pushed off: 0.2-0.3 m for 11 s
+        d = 0.01 if t < 1.0 else 0.25 + 0.05 * math.cos(t)
+        bb.set(POSE.name, _pose(10.0 - d, 0.0, t=t), overwrite=True)
+        guard.tick_once()
+    assert guard.status == S.FAILURE
+    assert "for 11 s (limit 5 s; 0.29 m from it, 0.01 m at the closest)" in guard.feedback_message
 
 
 def test_not_trapped_leaves_the_final_turn_at_the_goal_alone():

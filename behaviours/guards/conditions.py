@@ -176,14 +176,14 @@ class NotTrapped(Guard):
         if now - self._seen > 1.0:
             self._best = None
         self._seen = now
-        self._closest = d if self._best is None else min(self._closest, d)
         best = self._best
         if best is None or d <= self.at_goal or d < max(best - self.min_progress, self.at_goal):
-            self._best, self._since = d, now
+            self._best, self._since, self._closest = d, now, d
+        self._closest = min(self._closest, d)  # since the last progress
         stuck = now - self._since
         self.feedback_message = (
             f"no progress towards {self.towards} for {stuck:.0f} s (limit {self.period:.0f} s; "
-            f"{self._closest:.2f} m from it at the closest)"
+            f"{d:.2f} m from it, {self._closest:.2f} m at the closest)"
         )
         return Status.FAILURE if stuck > self.period else Status.SUCCESS
 
