@@ -127,7 +127,7 @@ class TrackJudge:
         tail = [
             "",
             f"static structure counted as moving (vouched speed >= {MOVER_SPEED} m/s): "
-            f"{self.static_moving} of {static} samples ({100 * share:.2f} %), fastest "
+            f"{self.static_moving} of {static} samples ({100 * share:.2f} %), fastest track "
             f"{max(self.static_speed, default=0.0):.3f} m/s",
         ]
         out = [f"| {'tracking':<44} | {'samples':>8} | {'mean':>8} | {'p50':>8} | {'p99':>8} |"]

@@ -179,7 +179,8 @@ class NotTrapped(Guard):
         best = self._best
         if best is None or d <= self.at_goal or d < max(best - self.min_progress, self.at_goal):
             self._best, self._since, self._closest = d, now, d
-        self._closest = min(self._closest, d)  # since the last progress
+        else:
+            self._closest = min(self._closest, d)  # since the last progress
         stuck = now - self._since
         self.feedback_message = (
             f"no progress towards {self.towards} for {stuck:.0f} s (limit {self.period:.0f} s; "
