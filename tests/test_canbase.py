@@ -12,6 +12,7 @@ recorded .asc / .blf log of an exchange decodes with the shipped DBC.
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 import time
 import uuid
@@ -769,21 +770,80 @@ def test_a_recorded_log_decodes_with_the_shipped_dbc(rig, tmp_path, suffix):
     assert names == set(MESSAGES)
 
 
+def _watchdog_brake(r: Rig, stall: float = 0.15) -> list[str]:
+    """One heartbeat of ours ``stall`` seconds late: the base brakes; the link's faults."""
+    r.cycle()
+    r.publish()  # OK
+    r.tick(stall)
+    r.fw.poll()
+    r.publish()  # BRAKING_WATCHDOG
+    return r.link.health()
+
+
+def _drive_on(r: Rig, seconds: float) -> None:
+    """Heartbeats on time (every 20 ms) for ``seconds``."""
+    for _ in range(round(seconds / 0.02)):
+        r.tick(0.02)
+        r.cycle()
+    r.publish()
+
+
 def test_repeated_watchdog_braking_is_a_link_fault():
-    from executive.robotlink.canbase import WATCHDOG_TRIPS
+    from executive.robotlink.canbase import WATCHDOG_STALL_GAP, WATCHDOG_TRIPS
 
     r = make_rig(command_timeout=10.0)
     try:
         for trip in range(WATCHDOG_TRIPS):
-            r.cycle()
-            r.publish()  # OK
-            r.tick(0.2)  # a stall: no heartbeat for twice the watchdog
-            r.fw.poll()
-            r.publish()  # BRAKING_WATCHDOG
-            faults = r.link.health()
+            faults = _watchdog_brake(r)
             if trip < WATCHDOG_TRIPS - 1:
                 assert not any("watchdog" in f for f in faults), (trip, faults)
+                _drive_on(r, WATCHDOG_STALL_GAP + 0.2)  # separate stalls
         assert r.link.watchdog_trips == WATCHDOG_TRIPS
-        assert any(f"braked on its watchdog {WATCHDOG_TRIPS} times" in f for f in faults)
+        assert any(f"watchdog in {WATCHDOG_TRIPS} stalls" in f for f in faults), faults
     finally:
         close_rig(r)
+
+
+def test_one_stall_that_lets_several_heartbeats_run_late_only_holds_the_robot():
+    """A slow machine for 0.4 s: three heartbeat gaps in a row pass the 100 ms watchdog.
+    The base brakes each time (a hold); one hiccup is not a lost link."""
+    from executive.robotlink.canbase import WATCHDOG_TRIPS
+
+    r = make_rig(command_timeout=10.0)
+    try:
+        for _ in range(WATCHDOG_TRIPS):
+            faults = _watchdog_brake(r, stall=0.11)
+            assert faults == [], faults
+            assert any("braked on its watchdog" in h for h in r.link.holds())
+        assert r.link.watchdog_trips == WATCHDOG_TRIPS
+    finally:
+        close_rig(r)
+
+
+def test_a_heartbeat_that_keeps_arriving_late_is_a_link_fault():
+    from executive.robotlink.canbase import WATCHDOG_LONGEST_STALL
+
+    r = make_rig(command_timeout=10.0)
+    try:
+        started = r.exec_clock.t
+        faults: list[str] = []
+        while not faults:
+            assert r.exec_clock.t - started < WATCHDOG_LONGEST_STALL + 0.5, "never a fault"
+            faults = _watchdog_brake(r, stall=0.11)
+        assert r.exec_clock.t - started >= WATCHDOG_LONGEST_STALL
+        assert any("keeps arriving late" in f for f in faults), faults
+    finally:
+        close_rig(r)
+
+
+@given(st.lists(st.floats(0.0, 20.0), max_size=30), st.floats(0.01, 3.0))
+def test_watchdog_stalls_partition_the_brakes_by_their_gaps(trips, gap):
+    from executive.robotlink.canbase import watchdog_stalls
+
+    trips = sorted(trips)
+    stalls = watchdog_stalls(trips, gap)
+    assert [t for s in stalls for t in s] == trips
+    for s in stalls:
+        assert all(b - a < gap for a, b in itertools.pairwise(s))
+    for before, after in itertools.pairwise(stalls):
+        assert after[0] - before[-1] >= gap

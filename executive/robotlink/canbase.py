@@ -64,9 +64,17 @@ TimeoutMs of BASE_HEARTBEAT."""
 RESET_MAGIC = 0xA55A
 WATCHDOG_TRIPS = 3
 WATCHDOG_TRIP_WINDOW = 10.0
-"""The base braking on its watchdog this many times within this many seconds is a link
-fault: one late tick (a scheduling stall) only holds the robot for a moment, the base's
-own rule, and the run goes on; a heartbeat that keeps arriving late cannot be trusted."""
+"""The base braking on its watchdog in this many separate stalls within this many seconds
+is a link fault: one stall of ours (a scheduling hiccup) only holds the robot for a moment,
+the base's own rule, and the run goes on; a heartbeat that keeps arriving late cannot be
+trusted."""
+WATCHDOG_STALL_GAP = 1.0
+"""Watchdog brakes less than this many seconds apart are one stall: a process (or the whole
+machine) that runs slow for a few hundred milliseconds lets several heartbeat gaps in a row
+pass the base's watchdog, which is one hiccup, not three."""
+WATCHDOG_LONGEST_STALL = 1.0
+"""One stall whose brakes go on for this many seconds is a link fault by itself: a
+heartbeat that keeps arriving late is not a hiccup."""
 COUNTER_MODULO = 16
 CRC_SIGNAL = "CRC8"
 COUNTER_SIGNAL = "COUNTER"
@@ -742,13 +750,9 @@ class CanBaseLink(Wire):
         reasons = _bus_state_reasons(self._bus)
         with self._lock:
             latest, events = self._latest, dataclasses.replace(self._events)
-            trips = sum(1 for t in self._watchdog_trips if now - t <= WATCHDOG_TRIP_WINDOW)
+            recent = [t for t in self._watchdog_trips if now - t <= WATCHDOG_TRIP_WINDOW]
         reasons += self._heartbeat_reasons(latest, events, now)
-        if trips >= WATCHDOG_TRIPS:
-            reasons.append(
-                f"the base braked on its watchdog {trips} times within {WATCHDOG_TRIP_WINDOW:g} s:"
-                " the executive's heartbeat does not keep time"
-            )
+        reasons += watchdog_stall_reasons(recent)
         reasons += self._error_reasons(events, now)
         reasons += _base_reasons(latest)
         return list(dict.fromkeys(reasons))
@@ -806,6 +810,38 @@ class CanBaseLink(Wire):
 
 def _ptu_signals(index: int, pan_rate: float, tilt_rate: float) -> dict[str, float]:
     return {"UNIT": float(index), "PAN_RATE": pan_rate, "TILT_RATE": tilt_rate}
+
+
+def watchdog_stalls(trips: Sequence[float], gap: float = WATCHDOG_STALL_GAP) -> list[list[float]]:
+    """The base's watchdog brakes (times, ascending) grouped into stalls: a brake less than
+    ``gap`` seconds after the previous one continues its stall."""
+    stalls: list[list[float]] = []
+    for t in trips:
+        if stalls and t - stalls[-1][-1] < gap:
+            stalls[-1].append(t)
+        else:
+            stalls.append([t])
+    return stalls
+
+
+def watchdog_stall_reasons(trips: Sequence[float]) -> list[str]:
+    """Why the base's watchdog brakes within the last :data:`WATCHDOG_TRIP_WINDOW` seconds
+    (``trips``) are a link fault, if they are: :data:`WATCHDOG_TRIPS` separate stalls, or one
+    stall lasting :data:`WATCHDOG_LONGEST_STALL` or more."""
+    stalls = watchdog_stalls(trips)
+    reasons = []
+    if len(stalls) >= WATCHDOG_TRIPS:
+        reasons.append(
+            f"the base braked on its watchdog in {len(stalls)} stalls within"
+            f" {WATCHDOG_TRIP_WINDOW:g} s: the executive's heartbeat does not keep time"
+        )
+    longest = max((s for s in stalls), key=lambda s: s[-1] - s[0], default=None)
+    if longest is not None and longest[-1] - longest[0] >= WATCHDOG_LONGEST_STALL:
+        reasons.append(
+            f"the base braked on its watchdog {len(longest)} times in"
+            f" {longest[-1] - longest[0]:.1f} s: the executive's heartbeat keeps arriving late"
+        )
+    return reasons
 
 
 def _bus_state_reasons(bus: can.BusABC) -> list[str]:
