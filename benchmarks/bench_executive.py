@@ -1,7 +1,7 @@
 """Executive speed: the tick at 50 Hz, and a whole dry-run against sim2d.
 
 Usage:  OPENBLAS_NUM_THREADS=1 python benchmarks/bench_executive.py [--seconds 300]
-            [--scenario clear-apron]
+            [--scenario clear-apron | --scenario PATH.xml] [--ticks-only]
 
 (1) Tick: sensing + tree (obstacle avoidance included) + controllers + safety layer,
     without the simulator, over the first SECONDS (approach and inspection) of the A320
@@ -11,6 +11,8 @@ Usage:  OPENBLAS_NUM_THREADS=1 python benchmarks/bench_executive.py [--seconds 3
     debug strings on every tick either way; the difference is what emitting them costs.
     The quiet run's ticks are also split by what drove: visual servoing (the controller
     events' "visual servoing (pbvs|ibvs)" intervals, issue 13) against everything else.
+    Split again by the controller that drove (``by controller``). SCENARIO is the name of
+    one of the A320's scenarios or the path of any scenario file (its mission runs).
 (2) The whole A320 dry-run (executive + simulator + ground-truth judge): simulated
     seconds per wall-clock second.
 """
@@ -32,6 +34,9 @@ from sim2d.scenario import load_scenario
 
 
 def scenario_path(name: str) -> Path:
+    """One of the A320's shipped scenarios by name, or any scenario file by path."""
+    if name.endswith(".xml"):
+        return Path(name)
     return missions_dir() / "a320" / "scenarios" / f"{name}.xml"
 
 
@@ -66,6 +71,19 @@ def servo_split(run: DryRun) -> dict[str, dict[str, float]]:
     return {"servoing": _summary(ms[servoing]), "other": _summary(ms[~servoing])}
 
 
+def controller_split(run: DryRun) -> dict[str, dict[str, float]]:
+    """The run's tick durations by the controller that drove the base (its controller
+    events' intervals; "none" before the first)."""
+    stats = run.result.stats
+    ms = np.array(stats.durations) * 1e3
+    names = np.full(ms.size, "none", dtype=object)
+    for event in run.result.events:
+        if event.kind == "controller":
+            tick = min(ms.size, round(event.t / stats.period))
+            names[tick:] = str(event.detail.get("to", ""))
+    return {str(name): _summary(ms[names == name]) for name in dict.fromkeys(names)}
+
+
 def tick_figures(seconds: float, debug: bool, name: str) -> dict[str, object]:
     scenario = load_scenario(scenario_path(name))
     previous = py_trees.logging.level
@@ -76,18 +94,28 @@ def tick_figures(seconds: float, debug: bool, name: str) -> dict[str, object]:
             run = dry_run(scenario, max_time=seconds)
     finally:
         py_trees.logging.level = previous
-    return {**run.result.stats.summary(), **({} if debug else servo_split(run))}
+    if debug:
+        return run.result.stats.summary()
+    split = {"by controller": controller_split(run)}
+    return {**run.result.stats.summary(), **servo_split(run), **split}
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=300.0)
-    parser.add_argument("--scenario", default="clear-apron")
+    parser.add_argument(
+        "--scenario", default="clear-apron", help="an A320 scenario's name, or a scenario file"
+    )
+    parser.add_argument(
+        "--ticks-only", action="store_true", help="the tick figures only, not the whole dry-run"
+    )
     args = parser.parse_args()
     quiet = tick_figures(args.seconds, debug=False, name=args.scenario)
     loud = tick_figures(args.seconds, debug=True, name=args.scenario)
     print(f"tick, py_trees logging quiet: {quiet}")
     print(f"tick, py_trees logging DEBUG: {loud}")
+    if args.ticks_only:
+        return
     scenario = load_scenario(scenario_path(args.scenario))
     t0 = time.perf_counter()
     run = dry_run(scenario)

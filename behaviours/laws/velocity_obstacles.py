@@ -443,7 +443,11 @@ def choose_heading(
         turn = np.concatenate((turn, (math.pi - np.abs(o[back])) / p.omega_max))
         reverse = np.concatenate((reverse, np.ones(len(rs), dtype=bool)))
     turn = np.where(s > 0.0, turn, 0.0)  # standing still needs no turn
-    ground = s if speed_scale is None else s * speed_scale(h)  # the speed it will get
+    if speed_scale is None:
+        ground = s
+    else:  # the speed it will get; one factor per heading, not per candidate
+        unique, index = np.unique(h, return_inverse=True)
+        ground = s * speed_scale(unique)[index]
     u = np.column_stack((ground * np.cos(h), ground * np.sin(h)))
     contact = turn_then_go_contact(robot_xy, turn, u, obstacles, robot_radius, p.horizon)
     cost = np.einsum("ki,ki->k", u - preferred, u - preferred) / (p.v_max * p.v_max)
