@@ -835,7 +835,7 @@ def watchdog_stall_reasons(trips: Sequence[float]) -> list[str]:
             f"the base braked on its watchdog in {len(stalls)} stalls within"
             f" {WATCHDOG_TRIP_WINDOW:g} s: the executive's heartbeat does not keep time"
         )
-    longest = max((s for s in stalls), key=lambda s: s[-1] - s[0], default=None)
+    longest = max(stalls, key=lambda s: s[-1] - s[0], default=None)
     if longest is not None and longest[-1] - longest[0] >= WATCHDOG_LONGEST_STALL:
         reasons.append(
             f"the base braked on its watchdog {len(longest)} times in"
