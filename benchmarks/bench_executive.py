@@ -51,36 +51,30 @@ def _summary(ms: np.ndarray) -> dict[str, float]:
     }
 
 
+def controllers_per_tick(run: DryRun) -> np.ndarray:
+    """The controller that drove the base at each of the run's ticks (its controller
+    events' intervals; "none" before the first)."""
+    stats = run.result.stats
+    names = np.full(len(stats.durations), "none", dtype=object)
+    for event in run.result.events:
+        if event.kind == "controller":
+            tick = min(names.size, round(event.t / stats.period))
+            names[tick:] = str(event.detail.get("to", ""))
+    return names
+
+
 def servo_split(run: DryRun) -> dict[str, dict[str, float]]:
     """The run's tick durations while visual servoing drove the base, and otherwise."""
-    stats = run.result.stats
-    ms = np.array(stats.durations) * 1e3
-    servoing = np.zeros(ms.size, dtype=bool)
-    start = None
-    for event in run.result.events:
-        if event.kind != "controller":
-            continue
-        tick = min(ms.size, round(event.t / stats.period))
-        if str(event.detail.get("to", "")).startswith("visual servoing"):
-            start = tick if start is None else start
-        elif start is not None:
-            servoing[start:tick] = True
-            start = None
-    if start is not None:
-        servoing[start:] = True
+    ms = np.array(run.result.stats.durations) * 1e3
+    names = controllers_per_tick(run)
+    servoing = np.array([n.startswith("visual servoing") for n in names], dtype=bool)
     return {"servoing": _summary(ms[servoing]), "other": _summary(ms[~servoing])}
 
 
 def controller_split(run: DryRun) -> dict[str, dict[str, float]]:
-    """The run's tick durations by the controller that drove the base (its controller
-    events' intervals; "none" before the first)."""
-    stats = run.result.stats
-    ms = np.array(stats.durations) * 1e3
-    names = np.full(ms.size, "none", dtype=object)
-    for event in run.result.events:
-        if event.kind == "controller":
-            tick = min(ms.size, round(event.t / stats.period))
-            names[tick:] = str(event.detail.get("to", ""))
+    """The run's tick durations by the controller that drove the base."""
+    ms = np.array(run.result.stats.durations) * 1e3
+    names = controllers_per_tick(run)
     return {str(name): _summary(ms[names == name]) for name in dict.fromkeys(names)}
 
 
