@@ -26,10 +26,11 @@ the e-stop, faults and the geofence always win over the tree):
    to twice the speed of a mover that closes in; under such a threat only a retreat
    that fares no worse than standing still against every mover
    (:meth:`~behaviours.laws.retreat.Retreat.no_worse`); from rest or continuing one (any
-   other command is stopped as before), into a corridor the lasers cover and that holds
-   no return inside r_es (beyond the crawl: r_es plus the retreat's stopping distance)
-   and no tracked mover about to enter it (the slowdown's r_d, rule 4), with no fault
-   and no stale data. The
+   other command is stopped as before; a robot still turning is stopped first, so that
+   the output is straight from the retreat's first tick), into a corridor the lasers
+   cover and that holds no return inside r_es (beyond the crawl: r_es plus the
+   retreat's stopping distance) and no tracked mover about to enter it (the slowdown's
+   r_d, rule 4), with no fault and no stale data. The
    retreat never brings the footprint closer to anything inside r_es; it then goes
    through rules 4-7 like any command (``estop-retreat`` when one starts).
 3. **Faults and stale data**: a :meth:`fault` (an exception in a tick, a lost bus, a
@@ -813,8 +814,8 @@ class SafetyLayer:
         if command.omega != 0.0 or not abs(v) > 0.0:
             return False  # not a retreat (NaN fails too)
         side = 1 if v > 0.0 else -1
-        if side not in self.retreat.sides or self._v * side < 0.0:
-            return False
+        if side not in self.retreat.sides or self._v * side < 0.0 or self._w != 0.0:
+            return False  # neither from rest nor continuing one: stop first
         tracks = obstacles.tracks
         if abs(v) > self.retreat.top_speed(tracks):
             return False

@@ -765,6 +765,19 @@ def test_property_latched_means_zero_or_a_retreat(start, ticks):
                 assert is_zero(out)
 
 
+def test_a_robot_still_turning_when_latched_stops_before_it_backs_out():
+    """Found by the property above: latched while the base still turned (its angular
+    speed ramping down under the rate limits), a retreat was let through at once and the
+    output turned at 0.1 rad/s while "backing out straight". The layer stops first."""
+    turn, crawl = (0.0, 1.0, 0.0, "none"), (-0.0, 0.0, 0.0, "crawl-near")
+    b = run_sequence((-60.0, 10.0, 0.0), [turn, turn, crawl, crawl, crawl])
+    assert b.sent[1].omega > 0.0  # turning when the latch came
+    assert b.statuses[2].estop_latched and not b.statuses[2].retreating
+    assert is_zero(b.sent[2])
+    for out, status in zip(b.sent[3:], b.statuses[3:], strict=True):
+        assert status.retreating and out.omega == 0.0 and out.v < 0.0
+
+
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(starts, st.lists(tick, max_size=60))
 def test_property_bumper_latch_survives_anything_without_reset(start, ticks):
