@@ -7,7 +7,8 @@ run a RANSAC on every cluster "to determine whether any of these obstacles are e
 lines or circles". Tracking (the last step of Fig. 2.3) is :mod:`behaviours.laws.tracking`.
 
 Steps of :meth:`ScanClusterer.detect`, all vectorised (no loop over points; the only
-Python loops run over a few offsets, refinement rounds or candidate cluster pairs):
+Python loops run over a few offsets, refinement rounds, candidate cluster pairs or the
+few segments two tracked objects may share):
 
 1. **Merge** (:func:`merge_scans`): every scan of both scanners into the robot frame R
    (:func:`behaviours.laws.obstacles.scan_to_robot`), keeping per point its range, scanner
@@ -31,7 +32,9 @@ Python loops run over a few offsets, refinement rounds or candidate cluster pair
    kept among them) are one. Segments of fewer than ``min_points`` points are dropped
    (the thesis's small accumulations). Segments of two scanners whose points touch
    (within ``merge_distance``: an object beside the robot seen by both) are merged.
-   :func:`occluded` flags the clusters whose view is cut by something in front.
+   :func:`occluded` flags the clusters whose view is cut by something in front. Given
+   the tracker's predictions, :func:`split_by_tracks` cuts a segment that is two tracked
+   objects touching (a walker against a post) back into the objects.
 4. **Classify** (:func:`fit_clusters`): RANSAC (Fischler & Bolles 1981) with the MSAC
    truncated quadratic cost (Torr & Zisserman 2000), batched across clusters: a fixed
    number of hypotheses per cluster, lines from 2 points and circles from 3 points drawn
@@ -104,6 +107,10 @@ class ClusterParams:
     hole does not link objects far apart in depth.
     ``min_points``: segments with fewer points are dropped (the thesis's accumulations
     below a threshold; 5 returns is a walker at about 25 m).
+    ``split_margin`` (m): a tracked object's enclosing disc, grown by this, holds its
+    returns when a segment is split between tracked objects (:func:`split_by_tracks`):
+    the fits' bias and one scan's prediction error (a walker's position is known to a few
+    centimetres; ten times the range noise).
     ``merge_distance`` (m): segments of two scanners are merged when a point of one is
     this close to a point of the other.
     ``range_margin`` (m): a cluster with a return this close to the range limit is cut by
@@ -130,6 +137,7 @@ class ClusterParams:
     skip: int = 3
     min_points: int = 5
     merge_distance: float = 0.3
+    split_margin: float = 0.2
     range_margin: float = 1.0
     ransac_hypotheses: int = 12
     ransac_points: int = 16
@@ -159,6 +167,8 @@ class ClusterParams:
             raise ValueError("need 0 < min_radius < max_radius")
         if not 0.0 < self.min_inlier_fraction <= 1.0:
             raise ValueError("min_inlier_fraction must be in (0, 1]")
+        if not self.split_margin >= 0.0:
+            raise ValueError("split_margin must be >= 0")
 
     @property
     def inlier_band(self) -> float:
@@ -407,6 +417,101 @@ def _merge_across_scanners(
 
 #: neighbours in bearing order searched for a point of another scanner
 _ANGULAR_NEIGHBOURS = 3
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class TrackHints:
+    """The small objects a tracker predicts at the scans' stamp, for
+    :func:`split_by_tracks`: ``position`` (k, 2) in R and enclosing ``radius`` (k,) of
+    each."""
+
+    position: FloatArray
+    radius: FloatArray
+
+
+def _one_object(hints: TrackHints, rows: IntArray) -> bool:
+    """Whether two of the hinted objects ``rows`` have each the other's centre inside
+    its disc (one object tracked twice)."""
+    p, r = hints.position[rows], hints.radius[rows]
+    d = np.hypot(p[:, None, 0] - p[None, :, 0], p[:, None, 1] - p[None, :, 1])
+    inside = d < np.minimum(r[:, None], r[None, :])
+    np.fill_diagonal(inside, False)
+    return bool(inside.any())
+
+
+def split_by_tracks(
+    x: FloatArray,
+    y: FloatArray,
+    labels: IntArray,
+    hints: TrackHints,
+    margin: float,
+    min_points: int,
+) -> IntArray:
+    """Step 3b: split a segment that is two tracked objects touching (track-aided
+    segmentation).
+
+    A walker or a trolley that comes against a post or a parked cart is one segment for
+    the breakpoint detector: nothing separates their returns. Their union is another
+    shape than either, bigger, its tracked point the middle of other points: the
+    tracker can only re-anchor a track on it (or take it for structure), and the
+    mover's track loses its velocity while it still moves (avoidance campaign episode
+    979: a chaser at 0.32 m/s tracked at 0.03 m/s against a round blocker, until it
+    struck the robot), while the other object's track, unfed, is deleted. The tracks
+    already say where each object is: a segment whose every point lies within
+    ``radius + margin`` of a hinted object is cut between those objects by the power
+    diagram of their discs (a point goes to the object minimising ``d^2 - radius^2``, so
+    a box's returns inside its enclosing circle stay its own beside a smaller post),
+    provided at least two objects get ``min_points`` points each (the points of objects
+    that get fewer go to their next best). Two hinted objects whose discs each hold the
+    other's centre are one object tracked twice, not two: they never cut a segment. A
+    segment that the hints do not cover whole (structure, a wall with a walker against
+    it, an object not yet tracked) is left as it is. Returns the labels, the new
+    segments numbered after the existing ones.
+    """
+    k = len(hints.radius)
+    members = (labels >= 0).nonzero()[0]
+    if k < 2 or len(members) == 0:
+        return labels
+    lab = labels[members]
+    n = int(lab.max()) + 1
+    count = np.bincount(lab, minlength=n)
+    cx = np.bincount(lab, x[members], n) / np.maximum(count, 1)
+    cy = np.bincount(lab, y[members], n) / np.maximum(count, 1)
+    r2 = np.zeros(n)
+    np.maximum.at(r2, lab, (x[members] - cx[lab]) ** 2 + (y[members] - cy[lab]) ** 2)
+    size = np.sqrt(r2)
+    # a hint can cover part of a segment only if its disc reaches the segment's circle
+    reach = size[:, None] + hints.radius[None, :] + margin
+    gap_x = cx[:, None] - hints.position[:, 0]
+    gap_y = cy[:, None] - hints.position[:, 1]
+    close = gap_x * gap_x + gap_y * gap_y <= reach * reach
+    candidates = (close.sum(axis=1) >= 2).nonzero()[0]
+    if len(candidates) == 0:
+        return labels
+    out = labels.copy()
+    for s in candidates.tolist():
+        idx = (labels == s).nonzero()[0]
+        near = close[s].nonzero()[0]
+        dx = x[idx, None] - hints.position[near, 0]
+        dy = y[idx, None] - hints.position[near, 1]
+        d2 = dx * dx + dy * dy
+        radius = hints.radius[near]
+        power = np.where(d2 <= (radius + margin) ** 2, d2 - radius * radius, np.inf)
+        owner = power.argmin(axis=1)
+        rows = np.arange(len(idx))
+        if not np.isfinite(power[rows, owner]).all():
+            continue  # points no hinted object explains: not (only) these objects
+        held = np.bincount(owner, minlength=len(near)) >= min_points
+        if np.count_nonzero(held) < 2 or _one_object(hints, near[held]):
+            continue
+        power[:, ~held] = np.inf
+        owner = power.argmin(axis=1)
+        if not np.isfinite(power[rows, owner]).all():
+            continue  # points only an object of too few points explains
+        for part in np.unique(owner)[1:].tolist():
+            out[idx[owner == part]] = n
+            n += 1
+    return out
 
 
 def _run_ends(
@@ -953,16 +1058,20 @@ class ScanClusterer:
         self,
         scans: Sequence[tuple[LaserScan, Pose2]],
         robot_points: Sequence[FloatArray] | None = None,
+        hints: TrackHints | None = None,
     ) -> Clusters:
         """Detect the obstacles in ``scans``: ``(scan, mount)`` pairs, ``mount`` the
         scanner's pose in R. Pass every new scan of every scanner, together when they
         were taken together; the result is stamped with the latest scan's stamp.
         ``robot_points``: optionally, each scan's returns in R already computed
-        (:func:`merge_scans`)."""
+        (:func:`merge_scans`). ``hints``: the tracked small objects at that stamp, to
+        split segments of objects touching (:func:`split_by_tracks`)."""
         p = self.params
         pts = merge_scans(scans, robot_points)
         kept = neighbour_mask(pts, p)
         labels = segment(pts, kept, p)
+        if hints is not None:
+            labels = split_by_tracks(pts.x, pts.y, labels, hints, p.split_margin, p.min_points)
         members = (labels >= 0).nonzero()[0]
         returns, isolated = len(pts), len(pts) - int(np.count_nonzero(kept))
         if len(members) == 0:

@@ -76,7 +76,18 @@ Mahalanobis distance of the innovation (``d^2 = y^T S^-1 y <= gate``, chi-square
 degrees of freedom) and assigned by minimising the sum of ``d^2 + ln det S`` (the
 negative log-likelihood) with the Hungarian method (``scipy.optimize.
 linear_sum_assignment``; Kuhn 1955). Because the prediction carries each track through
-a crossing, two walkers who cross keep their identities.
+a crossing, two walkers who cross keep their identities. However inflated a partial
+view's variance, a cluster is paired with a track only if it lies within both their
+sizes plus the track's own position uncertainty (the gate's radius along the major axis
+of the predicted position's covariance, at most ``max_offset``): a chaser's well-known
+track took a post seen again, cut by the chaser, 1.2 m away, and the post got no track
+of its own (avoidance campaign episode 979).
+
+Track-aided segmentation: :meth:`ObstacleTracker.hints` gives the clusterer the
+confirmed tracks of small objects predicted to the next scan, so that a segment of two
+of them touching (a trolley sliding past a post) is cut back into the two
+(:func:`behaviours.laws.laser_clusters.split_by_tracks`) instead of feeding both tracks
+a merged view that is neither.
 
 Track management: an unassigned cluster starts a tentative track (zero velocity, velocity
 standard deviation ``initial_speed_sigma``); ``confirm_hits`` assignments confirm it; a
@@ -108,7 +119,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import linear_sum_assignment
 
-from behaviours.laws.laser_clusters import BLOB, CIRCLE, KIND_NAMES, LINE, Clusters
+from behaviours.laws.laser_clusters import BLOB, CIRCLE, KIND_NAMES, LINE, Clusters, TrackHints
 from behaviours.laws.obstacles import footprint_distances, footprint_distances_xy
 from executive.core.frames import FloatArray, Pose2
 from executive.core.records import Danger, TrackedObstacle
@@ -281,8 +292,10 @@ class TrackerParams:
     module docstring) is forgotten with this time constant.
     ``gate``: chi-square gate on the squared Mahalanobis distance (13.8: 99.9 % for 2
     degrees of freedom); ``max_offset`` (m): and a cluster is never farther from a
-    track's predicted point than both their sizes plus this (a partial view's inflated
-    variance let a structure's track take a cluster 19 m away). ``confirm_hits``:
+    track's predicted point than both their sizes plus the gate's radius along the
+    major axis of the predicted position's covariance, at most this (a partial view's
+    inflated variance let a structure's track take a cluster 19 m away, and a chaser's
+    well-known track a post seen again 1.2 m away). ``confirm_hits``:
     assignments that confirm a track (M).
     ``tentative_timeout``, ``coast_time`` (s): a tentative, resp. confirmed, track not
     assigned for longer is deleted (1 s: a walker hidden by another while they cross).
@@ -334,9 +347,27 @@ class ObstacleTracker:
         self.anchored = np.zeros(0, dtype=bool)
         self.last_kind = np.zeros(0, dtype=np.int8)  # the kind of the last assigned cluster
         self.last_boxed = np.zeros(0, dtype=bool)  # ... and whether it was a fitted box
+        #: the enclosing radius of the last whole view no bigger than ``max_blob_size``
+        #: (0: none yet), and its stamp: the object's own size while it is seen merged
+        self.small_size = np.zeros(0)
+        self.small_seen = np.zeros(0)
 
     def __len__(self) -> int:
         return len(self.ids)
+
+    def hints(self, stamp: float, pose: Pose2) -> TrackHints:
+        """The confirmed tracks of small objects (seen whole no bigger than
+        ``max_blob_size`` within ``coast_time``, with that view's size)
+        predicted to ``stamp``, in R at ``pose`` (W <- R): where the next scan's clusterer
+        may cut a segment of two of them touching
+        (:func:`behaviours.laws.laser_clusters.split_by_tracks`)."""
+        p = self.params
+        recent = (self.small_size > 0.0) & (stamp - self.small_seen <= p.coast_time)
+        small = ((self.hits >= p.confirm_hits) & recent).nonzero()[0]
+        dt = 0.0 if self.stamp is None else max(stamp - self.stamp, 0.0)
+        ahead = self.state[small, :2] + dt * self.state[small, 2:]
+        position = pose.inverse().apply(ahead) if len(small) else np.zeros((0, 2))
+        return TrackHints(position, self.small_size[small])
 
     def update(
         self, clusters: Clusters, pose: Pose2, velocity: tuple[float, float] = (0.0, 0.0)
@@ -383,7 +414,7 @@ class ObstacleTracker:
         r_yy = across * normal[:, 1] ** 2 + along * direction[:, 1] ** 2
         # however inflated a partial view's variance, two views of one object lie within
         # their sizes of each other (the prediction carries the motion)
-        reach = self.size[:, None] + clusters.size[None, :] + p.max_offset
+        reach = self.size[:, None] + clusters.size[None, :] + self._motion_reach()[:, None]
         rows, cols = self._associate(z, r_xx, r_xy, r_yy, reach)
         # no measurement of motion, only a new anchor: a view of a big object of another
         # kind than the last one (the middle of a face, then the centroid of an L or the
@@ -488,6 +519,15 @@ class ObstacleTracker:
         p[:, :2, :] += dt * p[:, 2:, :]
         p[:, :, :2] += dt * p[:, :, 2:]
         p += np.array([[q11, 0, q12, 0], [0, q11, 0, q12], [q12, 0, q22, 0], [0, q12, 0, q22]])
+
+    def _motion_reach(self) -> FloatArray:
+        """Per track, how far its object may be from its predicted point: the gate's
+        radius along the major axis of the predicted position's covariance
+        (``sqrt(gate * lambda_max)``), at most ``max_offset``."""
+        p = self.covariance
+        a, b, c = p[:, 0, 0], p[:, 0, 1], p[:, 1, 1]
+        lam = 0.5 * (a + c) + np.sqrt(0.25 * (a - c) ** 2 + b * b)
+        return np.minimum(np.sqrt(self.params.gate * lam), self.params.max_offset)
 
     def _associate(
         self,
@@ -626,6 +666,8 @@ class ObstacleTracker:
         self.anchored = np.concatenate((self.anchored, np.zeros(n, dtype=bool)))
         self.last_kind = np.concatenate((self.last_kind, kind.astype(np.int8)))
         self.last_boxed = np.concatenate((self.last_boxed, boxed))
+        self.small_size = np.concatenate((self.small_size, np.zeros(n)))
+        self.small_seen = np.concatenate((self.small_seen, np.full(n, -np.inf)))
 
     def _describe(
         self,
@@ -647,6 +689,9 @@ class ObstacleTracker:
         self.clearance[rows] = clusters.clearance[cols]
         rows, cols = rows[whole], cols[whole]
         self.size[rows] = clusters.size[cols]
+        small = clusters.size[cols] <= self.params.max_blob_size
+        self.small_size[rows[small]] = clusters.size[cols[small]]
+        self.small_seen[rows[small]] = t
         circle = clusters.kind[cols] == CIRCLE
         self.radius[rows[circle]] = clusters.circle[cols[circle], 2]
         line = clusters.kind[cols] == LINE
@@ -675,6 +720,8 @@ class ObstacleTracker:
             "anchored",
             "last_kind",
             "last_boxed",
+            "small_size",
+            "small_seen",
         ):
             setattr(self, name, getattr(self, name)[keep])
 
