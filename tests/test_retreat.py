@@ -18,6 +18,7 @@ from behaviours.laws.estop import EStopLatch
 from behaviours.laws.obstacles import closest_obstacle, footprint_distances
 from behaviours.laws.retreat import (
     BACKWARD,
+    ESCAPE_SPEEDS,
     FORWARD,
     REACTION,
     RETREAT_CLEARANCE,
@@ -185,6 +186,28 @@ def test_a_retreat_outruns_a_mover_that_would_reach_the_robot():
     ahead = np.array([[L / 2 + 0.3, 0.0]])
     oncomer = mover(-(L / 2 + 1.5), 0.0, 0.4)
     assert retreat.speed(ahead, 0.3, [oncomer]) == 0.0
+
+
+def test_a_retreat_gives_no_ground_to_a_mover_already_inside_r_es():
+    """Avoidance campaign episode 979: a chaser inside r_ES pressing on; an escape whose
+    smallest gap over the horizon was a few centimetres short of the best's counted as
+    "near the best" and, slower, was taken. Chosen again every tick, it lost those
+    centimetres again and again, and the chaser struck the backing robot. Once a mover
+    is inside r_ES the slowest escape that loses no ground is taken."""
+    retreat = Retreat(L, W, R_ES, frozenset({FORWARD, BACKWARD}), max_speed=1.0)
+    chaser = mover(L / 2 + 0.2 + 0.3, 0.0, -0.29)  # its edge 0.2 m ahead: inside r_ES
+    assert chaser.clearance < R_ES
+    v = retreat.speed(np.array([[L / 2 + 0.2, 0.0]]), 0.2, [chaser])
+    assert v <= -0.29  # as fast as the chaser at least
+    assert retreat.predict([chaser], v)[0].gap == pytest.approx(chaser.clearance)
+    assert v == min(  # and the slowest that is
+        (
+            u
+            for u in -np.linspace(RETREAT_SPEED, retreat.top_speed([chaser]), ESCAPE_SPEEDS)
+            if u <= -0.29
+        ),
+        key=abs,
+    )
 
 
 def test_the_proposal_is_never_worse_than_standing():

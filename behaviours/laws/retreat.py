@@ -70,6 +70,13 @@ RETREAT_CLEARANCE = 0.2
 """The tree backs away until the nearest return is this far (m) beyond r_ES: enough for
 the latch's hold to run out without the obstacle's jitter bringing it back in."""
 
+GAP_SLACK = 0.05
+"""How much smaller (m) the smallest predicted gap of an escape may be than the best
+escape's for a slower one to be taken instead, while no mover is inside r_ES yet. Once
+one is, none: the retreat is chosen again every tick, and a slack given per horizon is
+given again and again (a chaser at 0.32 m/s closed in on a robot backing at 0.29 m/s,
+avoidance campaign episode 979)."""
+
 FORWARD, BACKWARD = 1, -1
 SIDES = (FORWARD, BACKWARD)
 
@@ -347,7 +354,8 @@ class Retreat:
         :meth:`top_speed` on each of the :func:`open_sides` that leave room to stop
         (:meth:`room_for`) and are :meth:`no_worse` than standing, the slowest whose
         movers come inside r_ES and reach the footprint no sooner than the best's and
-        whose smallest gap is within 5 cm of it, when that best beats standing still.
+        whose smallest gap is within :data:`GAP_SLACK` of it (no smaller, once a mover is
+        inside r_ES), when that best beats standing still.
         Otherwise a crawl at :data:`RETREAT_SPEED` towards :func:`retreat_side` until the
         nearest return (``closest``, r_c) is :data:`RETREAT_CLEARANCE` beyond r_ES, and
         under a threat only when it is :meth:`no_worse` than standing."""
@@ -367,8 +375,10 @@ class Retreat:
                         scores.append(self._score(found))
             best = max(scores, default=None)
             if best is not None and best > self._score(standing):
+                # a mover already inside r_ES: no ground given (:data:`GAP_SLACK`)
+                slack = GAP_SLACK if best[0] > 0.0 else 0.0
                 for v, (intrusion, contact, gap) in zip(candidates, scores, strict=True):
-                    if (intrusion, contact) >= best[:2] and gap >= best[2] - 0.05:
+                    if (intrusion, contact) >= best[:2] and gap >= best[2] - slack:
                         return float(v)  # the slowest near the best
         if not closest < self.r_es + RETREAT_CLEARANCE:
             return 0.0
