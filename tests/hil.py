@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 
 from executive.hil import TRUTH_FILE, TruthLog, judge_hil
-from executive.robotlink.canbase import DEFAULT_BASE_TIMEOUT, DEFAULT_WATCHDOG
+from executive.robotlink.canbase import DEFAULT_BASE_TIMEOUT
 from sim2d.scenario import load_scenario
 from tests.conftest import MISSIONS, wait_until
 
@@ -42,8 +42,18 @@ STALL_TOLERANT_BASE_TIMEOUT_MS = 300.0
 stops *both* rig processes at once for 100-130 ms (a CI run's CAN log: neither the
 executive's heartbeat nor the base's went out for 106 and 129 ms, then each sent what
 it owed in a burst), which a real base, a microcontroller of its own, never does. The
-base's own watchdog stays at 100 ms in every rig, so a killed executive is still braked
-within the issue's bound."""
+base's own watchdog stays within the issue's bound in every rig
+(:data:`STALL_TOLERANT_WATCHDOG_MS`), so a killed executive is still braked in time."""
+
+
+STALL_TOLERANT_WATCHDOG_MS = 120.0
+"""The base's watchdog in every rig: the issue's bound (a killed executive braked within
+0.15 s, ``tests/test_hil.py::BRAKE_WITHIN``) less 30 ms for the base's own check, not
+the 100 ms default. With 100 ms, the 100-130 ms stalls of this shared VM above made the
+base brake three times within 10 s in a resumed run that had finished its checkpoints
+(a CI run: gaps of 103-132 ms at 643.3, 648.1 and 649.2 s), and the executive's link
+rule rightly called that a lost link; a robot's dedicated computer does not stall so.
+Most of those stalls stay under 120 ms."""
 
 
 def robot_file(folder: Path, base_timeout_ms: float) -> Path:
@@ -54,7 +64,7 @@ def robot_file(folder: Path, base_timeout_ms: float) -> Path:
         f"""<?xml version="1.0" encoding="UTF-8"?>
 <robot xmlns="urn:walkaround:robot:1" id="hil-test">
   <can interface="udp_multicast" channel="239.74.163.2" port="{free_port(socket.SOCK_DGRAM)}"
-       watchdog-ms="{1000.0 * DEFAULT_WATCHDOG:g}" base-timeout-ms="{base_timeout_ms:g}"/>
+       watchdog-ms="{STALL_TOLERANT_WATCHDOG_MS:g}" base-timeout-ms="{base_timeout_ms:g}"/>
   <ptu unit="front" index="0"/>
   <ptu unit="rear" index="1"/>
   <ptu unit="ptz" index="2"/>
