@@ -357,10 +357,9 @@ class ObstacleTracker:
 
     def hints(self, stamp: float, pose: Pose2) -> TrackHints:
         """The confirmed tracks of small objects (seen whole no bigger than
-        ``max_blob_size`` within ``coast_time``, with that view's size)
-        predicted to ``stamp``, in R at ``pose`` (W <- R): where the next scan's clusterer
-        may cut a segment of two of them touching
-        (:func:`behaviours.laws.laser_clusters.split_by_tracks`)."""
+        ``max_blob_size`` within ``coast_time``; that view's size) predicted to ``stamp``,
+        in R at ``pose`` (W <- R): where the next scan's clusterer may cut a segment of
+        two of them touching (:func:`behaviours.laws.laser_clusters.split_by_tracks`)."""
         p = self.params
         recent = (self.small_size > 0.0) & (stamp - self.small_seen <= p.coast_time)
         small = ((self.hits >= p.confirm_hits) & recent).nonzero()[0]

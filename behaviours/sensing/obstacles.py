@@ -126,13 +126,13 @@ class SenseObstacles(Node):
         if fresh:
             robot_points = {lid: self._robot_points(lid, s) for lid, s in scans}
             self._raw = self._closest(list(robot_points.values()))
-            stamp = max(s.stamp for _, s in fresh)
+            stamp = max(s.stamp for _, s in fresh)  # the clusters' stamp
+            pose = self._odometry_at(stamp)
             clusters = self.clusterer.detect(
                 [(s, self.mounts[lid]) for lid, s in fresh],
                 [robot_points[lid] for lid, _ in fresh],
-                self.tracker.hints(stamp, self._odometry_at(stamp)),
+                self.tracker.hints(stamp, pose),
             )
-            pose = self._odometry_at(clusters.stamp)
             self._tracks = self.tracker.update(clusters, pose, self._velocity)
             for lid, s in scans:
                 self._seen[lid] = s.stamp
