@@ -6,6 +6,9 @@ The thesis's obstacle pipeline (Algorithm 2.1, seed lines 780-830) over the laws
 run on *every* new scan of each scanner (the thesis processed 20 Hz of its 50 Hz data):
 a scan enters the pipeline once, the tick it first appears.
 
+Returns near the footprint are remembered in that frame while they lie in the lasers'
+blind pockets beside the body (:mod:`behaviours.laws.blind_spots`: ``Obstacles.hidden``).
+
 Tracks live in an odometry frame integrated here from the wheels and the IMU: continuous
 by construction (REP-105's ``odom``), so a GPS fix or a registration that corrects the
 pose estimate never shows up as a jump in every obstacle's velocity.
@@ -27,6 +30,7 @@ import py_trees
 
 from behaviours.base import Node
 from behaviours.keys import OBSTACLES, POSE, SENSOR_FRAME
+from behaviours.laws.blind_spots import BlindSpotMemory
 from behaviours.laws.laser_clusters import ScanClusterer
 from behaviours.laws.localisation import wheel_odometry
 from behaviours.laws.obstacles import closest_obstacle, scan_to_robot
@@ -71,6 +75,10 @@ class SenseObstacles(Node):
         )
         self.danger = self.tracker.danger
         self.walls = VirtualWalls(zones, platform.length, platform.width)
+        self.blind_spots = BlindSpotMemory(
+            platform.lasers.values(), platform.length, platform.width
+        )
+        self._hidden = np.zeros((0, 2))
         self._seen: dict[str, float] = {}
         self._points: dict[str, tuple[LaserScan, np.ndarray]] = {}
         self._raw = (np.zeros((0, 2)), math.inf, 0.0)
@@ -134,6 +142,7 @@ class SenseObstacles(Node):
                 self.tracker.hints(stamp, pose),
             )
             self._tracks = self.tracker.update(clusters, pose, self._velocity)
+            self._hidden = self.blind_spots.update(self._raw[0], pose, self._raw[1])
             for lid, s in scans:
                 self._seen[lid] = s.stamp
             self.scans_processed += len(fresh)
@@ -154,6 +163,7 @@ class SenseObstacles(Node):
                 tracks=self._tracks + walls,
                 virtual=virtual,
                 closest_virtual=closest_virtual,
+                hidden=self._hidden,
             ),
         )
         self.feedback_message = (

@@ -344,7 +344,9 @@ class Obstacles:
     ``virtual`` the zone-edge points injected near the robot (M, 2) in R, and
     ``closest_virtual`` their distance from the footprint. The e-stop uses ``closest``
     (real returns only: a virtual wall never moves away, so it must not latch the e-stop);
-    avoidance uses :attr:`closest_any`.
+    avoidance uses :attr:`closest_any`. ``hidden``: returns remembered where the lasers
+    cannot see now (the pockets beside the body, :mod:`behaviours.laws.blind_spots`), in
+    R (K, 2); they count only for what a turn would sweep (the arc retreat).
     """
 
     stamp: float
@@ -354,6 +356,7 @@ class Obstacles:
     tracks: tuple[TrackedObstacle, ...] = ()
     virtual: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
     closest_virtual: float = math.inf
+    hidden: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
 
     @property
     def closest_any(self) -> float:
