@@ -30,7 +30,14 @@ the e-stop, faults and the geofence always win over the tree):
    the output is straight from the retreat's first tick), into a corridor the lasers
    cover and that holds no return inside r_es (beyond the crawl: r_es plus the
    retreat's stopping distance) and no tracked mover about to enter it (the slowdown's
-   r_d, rule 4), with no fault and no stale data. The
+   r_d, rule 4), with no fault and no stale data. A robot pinched at two corners, where
+   no straight crawl gains ground, may instead take an *arc* at a crawl
+   (:meth:`~behaviours.laws.retreat.Retreat.arc_admitted`): ``|v| <=`` the crawl,
+   curvature within the platform's retreat arcs, no return (seen, or remembered in the
+   lasers' blind pockets beside the body, ``Obstacles.hidden``) closing in or coming
+   inside r_es along it over its stopping distance, no mover threatening, from rest or
+   on the same arc; its speed and yaw rate are then ramped together on that arc (rule
+   4 scales both), and a geofence rule that would bend it stops the robot instead. The
    retreat never brings the footprint closer to anything inside r_es; it then goes
    through rules 4-7 like any command (``estop-retreat`` when one starts).
 3. **Faults and stale data**: a :meth:`fault` (an exception in a tick, a lost bus, a
@@ -734,13 +741,15 @@ class SafetyLayer:
             if not self._retreating:
                 v = command.v
                 side = "forwards" if v > 0.0 else "backwards"
-                self._emit(
-                    now,
-                    ESTOP_RETREAT,
-                    f"backing out of the e-stop {side}: no return inside r_ES that way",
-                    v,
-                )
+                if command.omega:
+                    turn = "left" if command.omega > 0.0 else "right"
+                    why = f" on an arc turning {turn}: pinched, no return closes in along it"
+                else:
+                    why = ": no return inside r_ES that way"
+                self._emit(now, ESTOP_RETREAT, f"backing out of the e-stop {side}{why}", v)
         self._retreating = retreating
+        # an arc retreat keeps its curvature through the slowdown and the rate limits
+        arc = command.omega / command.v if retreating and command.omega else None
         scale = self._slowdown(now, obstacles, command.v)
         xy = _pose_tuple(pose)
         if stop is not None:
@@ -761,7 +770,7 @@ class SafetyLayer:
         if abs(vt) > lim.v_max:
             clipped.add("speed")
             vt = math.copysign(lim.v_max, vt)
-        wt = command.omega
+        wt = command.omega if arc is None else arc * vt
         if abs(wt) > lim.w_max:
             clipped.add("angular speed")
             wt = math.copysign(lim.w_max, wt)
@@ -772,7 +781,9 @@ class SafetyLayer:
         v0, a0, w0 = self._v, self._a, self._w
         vc, ac = lim.step_v(v0, a0, vt)
         vb, ab = lim.step_v(v0, a0, 0.0)
-        cand = _Candidate(vc, ac, lim.step_w(w0, wt))
+        # on an arc the yaw rate follows the speed: within its own limit, since the
+        # retreat's curvature is at most the angular over the linear acceleration
+        cand = _Candidate(vc, ac, lim.step_w(w0, wt) if arc is None else arc * vc)
         brake = _Candidate(vb, ab, lim.step_w(w0, 0.0))
         if not math.isnan(self._rest_sweep):
             # S(brake) = S(last output) - its own period: the exact recursion of the sweep
@@ -782,6 +793,8 @@ class SafetyLayer:
         out, level, why, d_min, zone = self._geofence(xy, cand, brake)
         self._geofence_event(now, level, zone, d_min, why)
 
+        if arc is not None and out is not cand:
+            level = _EMERGENCY  # the geofence would bend the arc: stop instead
         if level == _EMERGENCY:
             self._v = self._a = self._w = 0.0
             self._rest_sweep = 0.0
@@ -811,7 +824,9 @@ class SafetyLayer:
         if self._fault is not None or self._stale or obstacles is None:
             return False
         v = command.v
-        if command.omega != 0.0 or not abs(v) > 0.0:
+        if command.omega != 0.0:
+            return self._arc_admitted(command, obstacles)
+        if not abs(v) > 0.0:
             return False  # not a retreat (NaN fails too)
         side = 1 if v > 0.0 else -1
         if side not in self.retreat.sides or self._v * side < 0.0 or self._w != 0.0:
@@ -822,6 +837,21 @@ class SafetyLayer:
         if self.retreat.threatened(tracks) and not self.retreat.no_worse(tracks, v):
             return False
         return self._closing_clearance(obstacles, v) >= self.retreat.room_for(v)
+
+    def _arc_admitted(self, command: VelocityCommand, obstacles: Obstacles) -> bool:
+        """Rule 2's arc: a crawl on an arc no return closes in along
+        (:meth:`~behaviours.laws.retreat.Retreat.arc_admitted`), with no mover
+        threatening, from rest or on the arc the robot is already on (else stop first:
+        the rate limits would bend the path between two arcs)."""
+        v, omega = command.v, command.omega
+        if not (math.isfinite(v) and math.isfinite(omega)) or v == 0.0:
+            return False
+        moving = self._v != 0.0 or self._w != 0.0
+        if moving and not (self._v * v > 0.0 and math.isclose(self._w / self._v, omega / v)):
+            return False
+        if self.retreat.threatened(obstacles.tracks):
+            return False
+        return self.retreat.arc_admitted(obstacles.points, v, omega, obstacles.hidden)
 
     # -- e-stop, faults, stale data ---------------------------------------------------------------
     def _update_estop(

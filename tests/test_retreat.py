@@ -17,6 +17,7 @@ from behaviours.keys import COMMAND, OBSTACLES
 from behaviours.laws.estop import EStopLatch
 from behaviours.laws.obstacles import closest_obstacle, footprint_distances
 from behaviours.laws.retreat import (
+    ARC_STEP,
     BACKWARD,
     ESCAPE_SPEEDS,
     FORWARD,
@@ -24,19 +25,24 @@ from behaviours.laws.retreat import (
     RETREAT_CLEARANCE,
     RETREAT_SPEED,
     Retreat,
+    closes_in,
     corridor_clearance,
     covered_sides,
+    distances_along,
     heading_clearances,
     movers,
+    open_sides,
+    path_poses,
     predicted_gap,
     retreat_side,
     slowdown_scale,
 )
 from executive.campaign.runner import episode_row
 from executive.campaign.spec import load_campaign
-from executive.core.records import Obstacles, TrackedObstacle
+from executive.core.records import Obstacles, TrackedObstacle, VelocityCommand
+from executive.safety import predict_pose
 from tests.conftest import MISSIONS, blackboard_writer
-from tests.test_safety import Bench, cmd, is_zero, layer, mission
+from tests.test_safety import Bench, check_limits, cmd, is_zero, layer, mission
 
 L, W, R_ES = 1.3, 0.9, 0.6
 
@@ -270,6 +276,140 @@ def test_property_a_retreat_is_bounded_and_never_worse_than_standing(tracked, cl
         assert worst(retreat.predict(tracks, v)) > worst(retreat.predict(tracks, 0.0))
 
 
+# -- arcs out of a pinch --------------------------------------------------------------------------
+def post(x: float, y: float, radius: float = 0.05, n: int = 12) -> list[tuple[float, float]]:
+    """The returns of a post of ``radius`` at (x, y): its whole outline (as if seen from
+    everywhere), robot frame."""
+    a = np.linspace(0.0, 2 * math.pi, n, endpoint=False)
+    return [(x + radius * math.cos(t), y + radius * math.sin(t)) for t in a]
+
+
+def pinch(length: float = L, width: float = W) -> np.ndarray:
+    """Two posts off the robot's right-hand corners, inside r_ES (avoidance campaign
+    episode 100: a person standing ahead on the right, 0.56 m from the front corner,
+    a round blocker behind on the right, 0.585 m from the rear one, more abeam)."""
+    out = []
+    front, rear = (length / 2, -width / 2), (-length / 2, -width / 2)
+    for corner, offset in ((front, (0.42, -0.37)), (rear, (-0.2, -0.55))):
+        n = np.hypot(*offset)
+        centre = np.add(corner, np.multiply(offset, (n + 0.05) / n))
+        out += post(*centre)
+    return np.array(out)
+
+
+ARCS = Retreat(L, W, R_ES, frozenset({FORWARD, BACKWARD}), max_curvature=2.0)
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    v=st.floats(-1.0, 1.0).filter(lambda v: abs(v) > 1e-3),
+    omega=st.floats(-2.0, 2.0),
+    distance=st.floats(0.001, 1.0),
+)
+def test_path_poses_follow_the_unicycle(v, omega, distance):
+    """The last pose along the path is the safety layer's exact unicycle prediction for
+    the time that distance takes."""
+    poses = path_poses(v, omega, distance)
+    assert np.allclose(poses[0], 0.0)
+    x, y, th = predict_pose(0.0, 0.0, 0.0, v, omega, distance / abs(v))
+    assert poses[-1] == pytest.approx([x, y, th], abs=1e-9)
+    steps = np.hypot(*np.diff(poses[:, :2], axis=0).T)
+    assert steps.max() <= ARC_STEP + 1e-9
+
+
+def test_pinched_at_two_corners_the_retreat_takes_an_arc():
+    """Forwards closes on the front post, the rear one closes the way backwards (it is
+    inside r_ES in that corridor); an arc backwards, turning right, gains ground and
+    closes in on nothing."""
+    points = pinch()
+    closest, _ = closest_obstacle(points, L, W)
+    assert closest < R_ES
+    assert ARCS.gain(points, RETREAT_SPEED, 0.0)[1] < 0.0
+    assert BACKWARD not in open_sides(points, {FORWARD, BACKWARD}, L, W, R_ES)
+    v, omega = ARCS.motion(points, closest)
+    assert v == -RETREAT_SPEED and omega < 0.0
+    fine = distances_along(points, path_poses(v, omega, 0.2, step=0.001), L, W)
+    assert not closes_in(fine, R_ES)
+    assert fine[-1].min() > closest + 0.02
+    # a robot whose lasers leave it blind beside its body crawls straight, as before
+    straight = dataclasses.replace(ARCS, max_curvature=0.0)
+    assert straight.motion(points, closest)[1] == 0.0
+
+
+def test_out_of_a_pinch_by_arcs_until_clear():
+    """The proposals, followed a tick at a time, bring the robot out of the pinch until
+    no crawl gains ground any more, well clear of r_ES (the latch then runs out), never
+    closer to a post inside r_ES, never letting one in."""
+    world = pinch()
+    x = y = th = 0.0
+    previous = (0.0, 0.0)
+    before = footprint_distances(world, L, W)
+    for _ in range(400):
+        c, s = math.cos(th), math.sin(th)
+        dx, dy = world[:, 0] - x, world[:, 1] - y
+        points = np.column_stack((c * dx + s * dy, c * dy - s * dx))
+        now = footprint_distances(points, L, W)
+        assert np.all(now >= np.minimum(before, R_ES) - 1e-9)
+        before = now
+        closest = float(now.min())
+        previous = ARCS.motion(points, closest, (), previous)
+        if previous == (0.0, 0.0):
+            break
+        x, y, th = predict_pose(x, y, th, *previous, 0.02)
+    assert previous == (0.0, 0.0)
+    assert closest > R_ES + 0.75 * RETREAT_CLEARANCE
+
+
+def test_a_return_remembered_in_a_blind_spot_bars_the_arc_that_would_sweep_it():
+    points = pinch()
+    closest, _ = closest_obstacle(points, L, W)
+    v, omega = ARCS.motion(points, closest)
+    # backing while turning right swings the front half of the right side outwards
+    hidden = np.array([[0.12, -W / 2 - 0.005]])
+    assert not ARCS.arc_admitted(points, v, omega, hidden)
+    assert ARCS.arc_admitted(points, v, omega)
+    assert ARCS.motion(points, closest, hidden=hidden) != (v, omega)
+
+
+def test_beyond_r_es_a_crawl_that_gains_nothing_stays():
+    """A post abeam, 0.7 m off: beyond r_ES but within RETREAT_CLEARANCE of it. Crawling
+    either way along the axis keeps it at 0.7 m: the robot stays and lets the latch run
+    out (it used to crawl, and, with the corridors opening and closing in turn with the
+    range noise, to propose forwards and backwards in turn, which the layer, stopping a
+    robot before it reverses, held still; avoidance campaign episode 100)."""
+    points = np.array(post(0.0, -W / 2 - 0.75))
+    closest, _ = closest_obstacle(points, L, W)
+    assert R_ES < closest < R_ES + RETREAT_CLEARANCE
+    assert ARCS.speed(points, closest) != 0.0
+    assert ARCS.motion(points, closest) == (0.0, 0.0)
+    ahead = np.array(post(L / 2 + 0.75, 0.0))  # ahead: backing out gains, as before
+    assert ARCS.motion(ahead, 0.7) == (-RETREAT_SPEED, 0.0)
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    points_strategy,
+    st.lists(st.tuples(st.floats(-1.0, 1.0), st.floats(-0.8, 0.8)), max_size=4),
+    st.sampled_from([(0.0, 0.0), (RETREAT_SPEED, 0.0), (-RETREAT_SPEED, 0.0)]),
+)
+def test_property_an_arc_retreat_never_closes_in(points, hidden, previous):
+    """Whatever the returns, seen and remembered, a proposed arc keeps every one inside
+    r_ES at least as far and every other one outside r_ES, along its lookahead checked at
+    a millimetre."""
+    pts = np.array(points)
+    hid = np.array(hidden, dtype=float).reshape(-1, 2)
+    hid = hid[footprint_distances(hid, L, W) > 0.0]
+    closest, _ = closest_obstacle(pts, L, W)
+    v, omega = ARCS.motion(pts, closest, (), previous, hid)
+    assert abs(v) <= RETREAT_SPEED
+    if omega == 0.0:
+        return
+    assert abs(omega) <= ARCS.max_curvature * abs(v) + 1e-12
+    both = np.vstack((pts, hid))
+    fine = distances_along(both, path_poses(v, omega, ARCS.lookahead(v), step=0.001), L, W)
+    assert not closes_in(fine, R_ES, tol=1e-4)
+
+
 # -- the safety layer -----------------------------------------------------------------------------
 AHEAD = [(0.65 + 0.3, 0.0)]  # 0.3 m in front of the footprint: inside r_ES
 
@@ -286,8 +426,8 @@ def latched_bench(**kw) -> Bench:
 def test_an_obstacle_latch_admits_a_crawl_away_and_nothing_else():
     b = latched_bench()
     lay, lim = b.layer, b.layer.limits
-    # towards the obstacle, turning, too fast: stopped as before
-    for bad in (cmd(RETREAT_SPEED), cmd(-RETREAT_SPEED, 0.1), cmd(-2 * RETREAT_SPEED)):
+    # towards the obstacle, turning tighter than a retreat arc, too fast: stopped
+    for bad in (cmd(RETREAT_SPEED), cmd(-RETREAT_SPEED, 1.0), cmd(-2 * RETREAT_SPEED)):
         assert is_zero(b.step(bad, seen=seen(b.t, AHEAD), move=False))
         assert not lay.status.retreating
     outs = [b.step(cmd(-RETREAT_SPEED), seen=seen(b.t, AHEAD), move=False) for _ in range(40)]
@@ -358,6 +498,136 @@ def test_the_layer_admits_a_faster_retreat_only_under_a_threat():
     assert is_zero(b.step(cmd(0.6), seen=seen(b.t, pressed), move=False))
 
 
+def robot_view(b: Bench, world: np.ndarray, hidden=()) -> Obstacles:
+    """What the robot on bench ``b`` sees of the returns at ``world`` (airport frame)."""
+    c, s = math.cos(b.th), math.sin(b.th)
+    dx, dy = world[:, 0] - b.x, world[:, 1] - b.y
+    points = np.column_stack((c * dx + s * dy, c * dy - s * dx))
+    obstacles = seen(b.t, points.tolist())
+    return dataclasses.replace(obstacles, hidden=np.array(hidden, dtype=float).reshape(-1, 2))
+
+
+def to_world(b: Bench, points: np.ndarray) -> np.ndarray:
+    c, s = math.cos(b.th), math.sin(b.th)
+    return np.column_stack(
+        (b.x + c * points[:, 0] - s * points[:, 1], b.y + s * points[:, 0] + c * points[:, 1])
+    )
+
+
+def test_the_layer_lets_a_pinched_robot_out_on_the_arc_the_tree_proposes():
+    """Closed loop: the tree's proposals through the layer, the bench following the sent
+    commands. The layer admits the arc, ramps speed and yaw rate on that very arc (the
+    curvature of every output is the proposal's), within the platform's limits; no post
+    inside r_ES ever gets closer, none outside comes in; the latch runs out."""
+    m = mission()
+    p = m.platform
+    b = Bench(layer())
+    world = to_world(b, pinch(p.length, p.width))
+    retreat = b.layer.retreat
+    assert retreat.max_curvature > 0.0  # two 270-degree lasers: blind pockets only
+    previous = (0.0, 0.0)
+    before = footprint_distances(robot_view(b, world).points, p.length, p.width)
+    arcs = 0
+    for _ in range(400):
+        view = robot_view(b, world)
+        now = footprint_distances(view.points, p.length, p.width)
+        assert np.all(now >= np.minimum(before, R_ES) - 1e-9)
+        before = now
+        if b.layer.latch.latched:
+            previous = retreat.motion(view.points, view.closest, (), previous, view.hidden)
+        else:
+            previous = (0.0, 0.0)
+        out = b.step(cmd(*previous), seen=view)
+        if b.layer.status.retreating and out.omega:
+            arcs += 1
+            assert out.omega / out.v == pytest.approx(previous[1] / previous[0], rel=1e-9)
+    assert arcs > 10
+    assert "estop-released" in [e.kind for e in b.layer.events]
+    check_limits(b)
+
+
+def test_the_layer_admits_an_arc_only_from_rest_or_on_it_and_with_nothing_against_it():
+    m = mission()
+    p = m.platform
+    points = pinch(p.length, p.width)
+    b = Bench(layer())
+    view = seen(b.t, points.tolist())
+    b.step(cmd(0.0), seen=view)
+    assert b.layer.latch.latched
+    v, omega = b.layer.retreat.motion(view.points, view.closest)
+    assert omega != 0.0
+
+    def try_arc(bench: Bench, obstacles: Obstacles, arc=(v, omega)) -> VelocityCommand:
+        return bench.step(cmd(*arc), seen=obstacles, move=False)
+
+    # a return remembered in the pocket the arc sweeps, a mover about to come in, a
+    # tighter arc, r_c alone (no returns to check the sweep against): refused
+    pocket = dataclasses.replace(view, hidden=np.array([[0.12, -p.width / 2 - 0.005]]))
+    walker = mover(-1.6, 0.0, 0.5)
+    threat = dataclasses.replace(view, tracks=(walker,))
+    blind = Obstacles(b.t, view.closest, view.bearing, np.zeros((0, 2)))
+    for obstacles, arc in (
+        (pocket, (v, omega)),
+        (threat, (v, omega)),
+        (view, (v, 2.5 * omega)),
+        (blind, (v, omega)),
+    ):
+        assert is_zero(try_arc(b, dataclasses.replace(obstacles, stamp=b.t), arc))
+        assert not b.layer.status.retreating
+    # from rest: admitted; then another arc, or a straight crawl, only after a stop
+    out = try_arc(b, dataclasses.replace(view, stamp=b.t))
+    assert b.layer.status.retreating and out.omega / out.v == pytest.approx(omega / v)
+    assert is_zero(try_arc(b, dataclasses.replace(view, stamp=b.t), (v, 0.5 * omega)))
+    out = try_arc(b, dataclasses.replace(view, stamp=b.t), (v, 0.5 * omega))
+    assert b.layer.status.retreating and out.omega / out.v == pytest.approx(0.5 * omega / v)
+    assert next(e.reason for e in b.layer.events if e.kind == "estop-retreat").startswith(
+        "backing out of the e-stop backwards on an arc turning right"
+    )
+
+
+posts = st.lists(
+    st.tuples(st.floats(-1.6, 1.6), st.floats(-1.4, 1.4)).filter(
+        lambda xy: footprint_distances(np.array([xy]), 1.4, 1.0)[0] > 0.1
+    ),
+    min_size=1,
+    max_size=4,
+)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    posts,
+    st.lists(
+        st.one_of(st.just(None), st.tuples(st.floats(-0.3, 0.3), st.floats(-1.2, 1.2))),
+        min_size=1,
+        max_size=40,
+    ),
+)
+def test_property_while_latched_nothing_inside_r_es_gets_closer(centres, commands):
+    """Posts anywhere round the robot, commands anything (``None``: the tree's own
+    proposal): while an obstacle latch holds, every output keeps every post inside r_ES
+    at least as far, and, on an arc, every other post out of r_ES."""
+    m = mission()
+    p = m.platform
+    b = Bench(layer())
+    world = to_world(b, np.array([xy for c in centres for xy in post(*c)]))
+    previous = (0.0, 0.0)
+    for command in commands:
+        view = robot_view(b, world)
+        before = footprint_distances(view.points, p.length, p.width)
+        if command is None:
+            previous = b.layer.retreat.motion(view.points, view.closest, (), previous)
+            command = previous
+        latched = b.layer.latch.latched or view.closest < R_ES
+        out = b.step(cmd(*command), seen=view)
+        after = footprint_distances(robot_view(b, world).points, p.length, p.width)
+        if latched and b.layer.latch.latched:
+            inside = before < R_ES
+            assert np.all(after[inside] >= before[inside] - 1e-7)
+            if out.omega:
+                assert np.all(after[~inside] >= R_ES - 1e-3)
+
+
 # -- the tree -------------------------------------------------------------------------------------
 def tick_hold(hold: EStopHold, obstacles: Obstacles) -> float:
     bb = blackboard_writer(OBSTACLES, COMMAND)
@@ -380,6 +650,17 @@ def test_the_tree_proposes_the_retreat_only_under_an_obstacle_latch():
 
 
 # -- end to end -----------------------------------------------------------------------------------
+def test_campaign_episode_pinched_at_two_corners_completes():
+    """Avoidance campaign episode 100: latched between a person standing ahead on the
+    right and the round blocker behind on the right, where either way along the axis
+    closes on one of them. The straight retreat proposed forwards and backwards in turn
+    for 100 s (a timeout); the arc out of the pinch frees it and the leg completes."""
+    campaign = load_campaign(MISSIONS / "campaigns" / "avoidance-leg.xml")
+    row = episode_row(campaign, 100)
+    assert row["succeeded"], row["causes"]
+    assert row["collisions"] == []
+
+
 @pytest.mark.parametrize("episode", [368, 493])
 def test_campaign_episodes_a_crawl_could_not_escape_now_complete(episode):
     """Episodes of the shipped avoidance campaign whose robot, backing out of r_ES at a

@@ -35,8 +35,11 @@ class EStopHold(Controller):
     """Zero command, for as long as its guard holds (seed lines 1536-1542); under an
     obstacle latch (``latch``, the guard's), a straight retreat out of it where the
     lasers show the way clear, a crawl or faster than a mover that would reach the robot
-    (``retreat``, :mod:`behaviours.laws.retreat`), which the safety layer checks again.
-    Without them, only the stop."""
+    (``retreat``, :mod:`behaviours.laws.retreat`), or a crawl on an arc when pinched,
+    which the safety layer checks again. The motion it proposed last is kept while it
+    still gains ground (:meth:`~behaviours.laws.retreat.Retreat.motion`): the layer stops
+    a robot before it reverses or changes its arc, so a proposal that flipped with the
+    range noise would hold it still. Without them, only the stop."""
 
     reads = (OBSTACLES,)
     writes = (COMMAND,)
@@ -49,16 +52,28 @@ class EStopHold(Controller):
     ) -> None:
         super().__init__(name)
         self.latch, self.retreat = latch, retreat
+        self._previous = (0.0, 0.0)
+
+    def initialise(self) -> None:
+        self._previous = (0.0, 0.0)
 
     def update(self) -> Status:
-        v = 0.0
+        v = omega = 0.0
         latch, retreat = self.latch, self.retreat
         if latch is not None and retreat is not None and latch.cause == "obstacle":
             obstacles: Obstacles | None = self.read(OBSTACLES)
             if obstacles is not None:
-                v = retreat.speed(obstacles.points, obstacles.closest, obstacles.tracks)
-        self.feedback_message = f"backing out at {v:+.2f} m/s" if v else "stopped"
-        self.write(COMMAND, VelocityCommand(v, 0.0) if v else VelocityCommand.stop())
+                v, omega = retreat.motion(
+                    obstacles.points,
+                    obstacles.closest,
+                    obstacles.tracks,
+                    self._previous,
+                    obstacles.hidden,
+                )
+        self._previous = (v, omega)
+        turning = f", turning at {omega:+.2f} rad/s" if omega else ""
+        self.feedback_message = f"backing out at {v:+.2f} m/s{turning}" if v else "stopped"
+        self.write(COMMAND, VelocityCommand(v, omega) if v else VelocityCommand.stop())
         return Status.RUNNING
 
 

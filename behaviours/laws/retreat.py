@@ -21,12 +21,21 @@ same way out, under rules that never bring the robot closer to anything:
   (:func:`covered_sides`) and that holds no return inside r_ES. Every return inside r_ES
   then lies behind the axle with respect to the motion or beside the body, so the
   motion never decreases its distance to the footprint (see the tests' property);
-* never after a bumper or the operator's e-stop: those need an operator.
+* never after a bumper or the operator's e-stop: those need an operator;
+* when no straight crawl gains ground (a robot pinched between two obstacles at its
+  diagonal corners, where either way along its axis closes on one of them) and the lasers
+  see all round the footprint but for pockets beside it that the robot remembers
+  (:mod:`behaviours.laws.blind_spots`), an *arc* at a crawl
+  (:meth:`Retreat.motion`): one that no return gets closer along (or, outside r_ES,
+  comes inside it) over the distance the robot needs to stop (:func:`closes_in`), of
+  curvature at most the platform's angular over linear acceleration (so that the safety
+  layer can ramp both speeds along the same arc), and only while no mover threatens.
 
 The tree proposes the retreat (:class:`behaviours.controllers.motion.EStopHold`, with
-:meth:`Retreat.speed`); the safety layer admits it only when the same corridor rule
-holds, no tracked mover is about to enter that corridor, and, under a threat, the
-retreat is :meth:`Retreat.no_worse` than standing (executive/safety.py, rule 2).
+:meth:`Retreat.motion`); the safety layer admits a straight one only when the same
+corridor rule holds, no tracked mover is about to enter that corridor, and, under a
+threat, the retreat is :meth:`Retreat.no_worse` than standing, and an arc only when
+:meth:`Retreat.arc_admitted` (executive/safety.py, rule 2).
 """
 
 from __future__ import annotations
@@ -37,6 +46,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from behaviours.laws.blind_spots import pockets_only, seen_by
 from behaviours.laws.obstacles import (
     footprint_distances,
     footprint_distances_xy,
@@ -76,6 +86,18 @@ escape's for a slower one to be taken instead, while no mover is inside r_ES yet
 one is, none: the retreat is chosen again every tick, and a slack given per horizon is
 given again and again (a chaser at 0.32 m/s closed in on a robot backing at 0.29 m/s,
 avoidance campaign episode 979)."""
+
+ARC_TURNS = (1.0, 0.5)
+"""The arcs a pinched robot tries, as fractions of the largest curvature it may retreat
+on (:attr:`Retreat.max_curvature`), turning either way, forwards and backwards."""
+
+GAIN_RATIO = 0.1
+"""A retreat must bring the nearest return further by this fraction of the distance it
+travels (over its :meth:`Retreat.lookahead`) to count as gaining ground: less is
+creeping alongside for nothing (a straight crawl away from what is ahead gains 1)."""
+
+ARC_STEP = 0.01
+"""Axle travel (m) between the poses a retreat is checked at along its path."""
 
 FORWARD, BACKWARD = 1, -1
 SIDES = (FORWARD, BACKWARD)
@@ -148,16 +170,46 @@ def covered_sides(
         along = side * np.linspace(
             0.5 * length + 0.01, 0.5 * length + reach, max(3, math.ceil(reach * _SAMPLES) + 1)
         )
-        xs, ys = np.meshgrid(along, across)
-        seen = np.zeros(xs.shape, dtype=bool)
-        for spec in specs:
-            dx, dy = xs - spec.mount[0], ys - spec.mount[1]
-            bearing = np.arctan2(dy, dx) - spec.mount_yaw
-            bearing = (bearing + np.pi) % (2 * np.pi) - np.pi
-            seen |= (np.abs(bearing) <= 0.5 * spec.fov) & (np.hypot(dx, dy) <= spec.range)
-        if seen.all():
+        if seen_by(specs, *np.meshgrid(along, across)).all():
             sides.add(side)
     return frozenset(sides)
+
+
+def path_poses(v: float, omega: float, distance: float, step: float = ARC_STEP) -> FloatArray:
+    """The poses ``(x, y, theta)`` (K, 3) of a robot leaving the origin at constant
+    ``(v, omega)`` (a straight line when omega is 0, else an arc of curvature
+    omega / v), every ``step`` m of axle travel up to ``distance``, the start included,
+    and 0.1 mm and 1 mm from it (a return that the first millimetres approach and the
+    next ones leave would pass between the samples); the unicycle integrated exactly."""
+    n = max(1, math.ceil(distance / step))
+    s = np.linspace(0.0, distance, n + 1)
+    s = np.unique(np.concatenate((s, [min(1e-4, distance), min(1e-3, distance)])))
+    s *= math.copysign(1.0, v)  # signed travel
+    k = omega / v
+    theta = k * s
+    if abs(k) < 1e-12:
+        return np.column_stack((s, np.zeros_like(s), theta))
+    return np.column_stack((np.sin(theta) / k, (1.0 - np.cos(theta)) / k, theta))
+
+
+def distances_along(
+    points: FloatArray, poses: FloatArray, length: float, width: float
+) -> FloatArray:
+    """The footprint's distance to each point (robot frame at the first pose, (N, 2)) from
+    each of ``poses`` (K, 3) in that frame: (K, N)."""
+    x, y, theta = poses[:, 0:1], poses[:, 1:2], poses[:, 2:3]
+    dx, dy = points[None, :, 0] - x, points[None, :, 1] - y
+    c, s = np.cos(theta), np.sin(theta)
+    return footprint_distances_xy(dx * c + dy * s, dy * c - dx * s, length, width)
+
+
+def closes_in(distances: FloatArray, r_es: float, tol: float = 1e-9) -> bool:
+    """Whether a motion whose footprint distances along its path are ``distances`` (K, N;
+    row 0 the start, :func:`distances_along`) brings the footprint closer to a return
+    already inside r_ES, or brings one from outside r_ES inside it: what no retreat may
+    do."""
+    floor = np.minimum(distances[0], r_es) - tol
+    return bool((distances[1:] < floor[None, :]).any())
 
 
 def movers(tracks: Iterable[TrackedObstacle]) -> list[TrackedObstacle]:
@@ -270,18 +322,28 @@ class Retreat:
     max_acceleration: float = 1.0
     max_jerk: float = 0.0
     """m/s^3; 0: no jerk limit."""
+    max_curvature: float = 0.0
+    """1/m: the tightest arc a pinched robot may retreat on (:meth:`motion`); 0: straight
+    retreats only (the lasers do not see all round the footprint)."""
 
     @staticmethod
     def of(mission: Mission) -> Retreat:
         """The retreat of the mission's platform: its footprint, r_ES, the sides its
-        lasers cover out to r_OA-trigger beyond the footprint, and its limits."""
+        lasers cover out to r_OA-trigger beyond the footprint, and its limits. Arcs when
+        the lasers see all round the footprint that far but for blind pockets it
+        remembers (:func:`~behaviours.laws.blind_spots.pockets_only`), of
+        curvature at most the angular over the linear acceleration (the safety layer
+        then ramps the yaw rate with the speed, on the same arc, within both limits) and
+        the angular speed over the crawl's."""
         platform, safety = mission.platform, mission.safety
+        lasers = platform.lasers.values()
         sides = covered_sides(
-            platform.lasers.values(),
-            platform.length,
-            platform.width,
-            safety.r_es,
-            safety.r_oa_trigger,
+            lasers, platform.length, platform.width, safety.r_es, safety.r_oa_trigger
+        )
+        around = pockets_only(lasers, platform.length, platform.width, safety.r_oa_trigger)
+        curvature = min(
+            platform.max_angular_acceleration / platform.max_acceleration,
+            platform.max_angular_speed / RETREAT_SPEED,
         )
         return Retreat(
             platform.length,
@@ -291,6 +353,7 @@ class Retreat:
             max(RETREAT_SPEED, platform.max_speed),
             platform.max_acceleration,
             platform.max_jerk,
+            curvature if around else 0.0,
         )
 
     def predict(self, tracks: Iterable[TrackedObstacle], velocity: float) -> list[Prediction]:
@@ -384,3 +447,97 @@ class Retreat:
             return 0.0
         crawl = _roomiest(room) * RETREAT_SPEED
         return crawl if not threat or _dominates(self.predict(tracks, crawl), standing) else 0.0
+
+    def lookahead(self, speed: float) -> float:
+        """How far along its path (m) a retreat at ``speed`` is checked: its
+        :meth:`stopping` distance and one :data:`ARC_STEP`."""
+        return self.stopping(speed) + ARC_STEP
+
+    def gain(
+        self, points: FloatArray, v: float, omega: float, hidden: FloatArray | None = None
+    ) -> tuple[bool, float]:
+        """(whether the motion ``(v, omega)`` (robot frame) keeps every return, and every
+        ``hidden`` one remembered in a blind spot, out of the footprint's way over its
+        :meth:`lookahead`, see :func:`closes_in`; how much further (m) the nearest return
+        then is)."""
+        if hidden is not None and len(hidden):
+            points = np.vstack((points, hidden))
+        poses = path_poses(v, omega, self.lookahead(v))
+        d = distances_along(points, poses, self.length, self.width)
+        if d.shape[1] == 0:
+            return True, 0.0
+        seen = d[:, : len(d[0]) - (0 if hidden is None else len(hidden))]
+        gain = float(seen[-1].min() - seen[0].min()) if seen.shape[1] else 0.0
+        return not closes_in(d, self.r_es), gain
+
+    def arc_admitted(
+        self, points: FloatArray, v: float, omega: float, hidden: FloatArray | None = None
+    ) -> bool:
+        """Whether ``(v, omega)``, omega not 0, is an arc this robot may retreat on now:
+        a crawl at most :data:`RETREAT_SPEED`, within :attr:`max_curvature`, along which
+        no return, seen or ``hidden``, closes in (:meth:`gain`); never without the returns
+        themselves (an estimate of r_c alone cannot vouch for a sweep). Whether a mover
+        threatens is the caller's to check (:meth:`threatened`)."""
+        if not (0.0 < abs(v) <= RETREAT_SPEED and omega != 0.0) or len(points) == 0:
+            return False  # NaN fails too
+        if not abs(omega) <= self.max_curvature * abs(v) * (1.0 + 1e-9):
+            return False
+        return self.gain(points, v, omega, hidden)[0]
+
+    def motion(
+        self,
+        points: FloatArray,
+        closest: float,
+        tracks: Iterable[TrackedObstacle] = (),
+        previous: tuple[float, float] = (0.0, 0.0),
+        hidden: FloatArray | None = None,
+    ) -> tuple[float, float]:
+        """The ``(v, omega)`` to propose (robot frame; (0, 0): stay).
+
+        Under a threat, or once the nearest return is :data:`RETREAT_CLEARANCE` beyond
+        r_ES, :meth:`speed`'s straight motion. Otherwise, of the crawls the robot may
+        make, each with its :meth:`gain` (how much further the nearest return gets over
+        the lookahead), those that gain ground (:data:`GAIN_RATIO`): the ``previous``
+        motion while it does (the safety layer stops a robot before it reverses or changes
+        its arc: no dithering between two that gain alike); else the straight crawl that
+        gains most; else, when none does (pinched at two corners), the arc
+        (:data:`ARC_TURNS`; only when :attr:`max_curvature` allows arcs) that gains most
+        without closing in on anything, seen or ``hidden`` (returns remembered in the
+        lasers' blind spots). When none gains: inside r_ES, :meth:`speed`'s crawl (a
+        return abeam, which it leaves behind); beyond r_ES, stay (the latch runs out)."""
+        tracks = tuple(tracks)
+        straight = self.speed(points, closest, tracks)
+        if not closest < self.r_es + RETREAT_CLEARANCE or self.threatened(tracks):
+            return straight, 0.0
+        room = open_sides(points, self.sides, self.length, self.width, self.r_es)
+        options = [(side * RETREAT_SPEED, 0.0) for side in room]
+        if self.max_curvature > 0.0 and len(points):
+            options += [
+                (side * RETREAT_SPEED, turn * k * self.max_curvature * RETREAT_SPEED)
+                for side in SIDES
+                for k in ARC_TURNS
+                for turn in (1.0, -1.0)
+            ]
+        spread = 1.0 + self.max_curvature * math.hypot(self.length, self.width) / 2
+        near = self._near(points, closest, spread)
+        least = GAIN_RATIO * self.lookahead(RETREAT_SPEED)
+        gains: dict[tuple[float, float], float] = {}
+        for v, omega in options:
+            admitted, gain = self.gain(near, v, omega, hidden if omega else None)
+            if (omega == 0.0 or admitted) and gain >= least:  # straight: by its corridor
+                gains[(v, omega)] = gain
+        if previous in gains:
+            return previous
+        for arcs in (False, True):
+            found = {m: g for m, g in gains.items() if (m[1] != 0.0) == arcs}
+            if found:
+                return max(found, key=lambda m: found[m])
+        return (straight, 0.0) if closest < self.r_es else (0.0, 0.0)
+
+    def _near(self, points: FloatArray, closest: float, spread: float) -> FloatArray:
+        """The returns that can matter to a crawl's :meth:`gain`: those within reach of
+        r_ES or of the nearest one once a corner has swept ``spread`` x the lookahead."""
+        if len(points) == 0:
+            return points
+        reach = max(closest, self.r_es) + 2.0 * spread * self.lookahead(RETREAT_SPEED) + 0.01
+        return points[footprint_distances(points, self.length, self.width) <= reach]
