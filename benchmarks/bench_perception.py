@@ -35,8 +35,9 @@ from pathlib import Path
 import numpy as np
 from bench_sim import CONTROL_HZ, RouteFollower
 
+from behaviours.laws.blind_spots import BlindSpotMemory
 from behaviours.laws.laser_clusters import KIND_NAMES, ScanClusterer
-from behaviours.laws.obstacles import MOVER_SPEED, is_mover
+from behaviours.laws.obstacles import MOVER_SPEED, closest_obstacle, is_mover, scan_to_robot
 from behaviours.laws.tracking import DangerParams, ObstacleTracker
 from executive.core.frames import Pose2
 from executive.core.records import LaserScan, TrackedObstacle
@@ -166,8 +167,9 @@ def main() -> None:
     clusterer = ScanClusterer(platform.length, platform.width)
     tracker = ObstacleTracker(DangerParams(platform.length, platform.width))
 
-    t_detect, t_track, t_total = [], [], []
-    returns, clusters, tracks = [], [], []
+    memory = BlindSpotMemory(platform.lasers.values(), platform.length, platform.width)
+    t_detect, t_track, t_total, t_memory = [], [], [], []
+    returns, clusters, tracks, hidden = [], [], [], 0
     kinds = np.zeros(len(KIND_NAMES))
     gc.disable()
     try:
@@ -179,6 +181,16 @@ def main() -> None:
             t1 = time.perf_counter_ns()
             confirmed = tracker.update(found, pose, velocity)
             t2 = time.perf_counter_ns()
+            points = np.vstack(
+                [
+                    scan_to_robot(s.ranges, s.angle_min, s.angle_increment, s.range_max, m)
+                    for s, m in with_mounts
+                ]
+            )
+            r_c, _ = closest_obstacle(points, platform.length, platform.width)
+            t3 = time.perf_counter_ns()
+            hidden += len(memory.update(points, pose, r_c)) > 0
+            t_memory.append((time.perf_counter_ns() - t3) * 1e-6)
             t_detect.append((t1 - t0) * 1e-6)
             t_track.append((t2 - t1) * 1e-6)
             t_total.append((t2 - t0) * 1e-6)
@@ -201,6 +213,7 @@ def main() -> None:
         + ", ".join(f"{k} {c / n:.1f}" for k, c in zip(KIND_NAMES, kinds, strict=True))
         + f"), {statistics.fmean(tracks):.1f} confirmed tracks (max {max(tracks)})"
     )
+    print(f"returns hidden in a blind spot beside the body in {hidden} of {n} pairs")
     print()
     print(f"| {'part':<44} | {'mean':>8} | {'p50':>8} | {'p99':>8} |")
     print(f"|{'-' * 46}|{'-' * 10}|{'-' * 10}|{'-' * 10}|")
@@ -208,6 +221,7 @@ def main() -> None:
         ("detect: merge, clean, segment, split, fit", t_detect),
         ("track: predict, associate, update, danger", t_track),
         ("whole pipeline", t_total),
+        ("blind spots: remember near returns", t_memory),
     ):
         mean, p50, p99 = summary(times)
         print(f"| {name:<44} | {mean:5.2f} ms | {p50:5.2f} ms | {p99:5.2f} ms |")
