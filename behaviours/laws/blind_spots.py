@@ -3,8 +3,8 @@ arc retreat (:mod:`behaviours.laws.retreat`).
 
 Two 270-degree scanners at the ends of the robot's axis (the Air-Cobot's Hokuyos, seed
 000 lines 617-800) see all round it except two pockets beside the middle of its long
-sides, each as deep as the scanners are set in from the corners (0.15 m on the shipped
-platforms). A straight motion never sweeps into them (the sides slide along
+sides, where their last rays, 135 degrees off the axis, cross (0.15 m deep on the shipped
+platforms: ``|x| + |y| < 0.65 m``). A straight motion never sweeps into them (the sides slide along
 themselves); a turn does: the half of each side ahead of or behind the axle swings out.
 What is in a pocket was in view before the robot drove alongside it, so the robot keeps
 the returns near its footprint in its odometry frame (continuous, REP-105's ``odom``)
