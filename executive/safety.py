@@ -795,6 +795,7 @@ class SafetyLayer:
 
         if arc is not None and out is not cand:
             level = _EMERGENCY  # the geofence would bend the arc: stop instead
+            retreating = self._retreating = False
         if level == _EMERGENCY:
             self._v = self._a = self._w = 0.0
             self._rest_sweep = 0.0

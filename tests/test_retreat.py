@@ -585,6 +585,22 @@ def test_the_layer_admits_an_arc_only_from_rest_or_on_it_and_with_nothing_agains
     )
 
 
+def test_an_arc_the_geofence_would_bend_stops_the_robot():
+    """The pinch mirrored, 0.2 m short of a forbidden zone (within the geofence margin):
+    the way out is an arc forwards, towards the zone, which the geofence would bend (its
+    variants without the turn or the translation): the layer stops the robot instead of
+    sending a motion off the arc it checked."""
+    p = mission().platform
+    b = Bench(layer(), x=25.0 - p.length / 2 - 0.2, y=7.0, th=0.0)  # facing gse-parking
+    view = seen(b.t, (pinch(p.length, p.width) * [-1.0, 1.0]).tolist())
+    v, omega = b.layer.retreat.motion(view.points, view.closest)
+    assert v > 0.0 and omega != 0.0
+    out = b.step(cmd(v, omega), seen=view)
+    status = b.layer.status
+    assert is_zero(out) and status.estop_latched and status.forced_stop
+    assert not status.retreating and status.stopped_reason.startswith("geofence")
+
+
 posts = st.lists(
     st.tuples(st.floats(-1.6, 1.6), st.floats(-1.4, 1.4)).filter(
         lambda xy: footprint_distances(np.array([xy]), 1.4, 1.0)[0] > 0.1
