@@ -84,22 +84,18 @@ class BlindSpotMemory:
         to do when it is beyond :data:`MEMORY_REACH` and nothing is remembered)."""
         if closest > MEMORY_REACH and not len(self._memory):
             return np.zeros((0, 2))
-        c, s = math.cos(pose.theta), math.sin(pose.theta)
         hidden = np.zeros((0, 2))
         if len(self._memory):
-            dx, dy = self._memory[:, 0] - pose.x, self._memory[:, 1] - pose.y
-            rx, ry = c * dx + s * dy, c * dy - s * dx
+            robot = pose.inverse().apply(self._memory)
+            rx, ry = robot[:, 0], robot[:, 1]
             keep = footprint_distances_xy(rx, ry, self.length, self.width) <= MEMORY_REACH
             keep &= ~seen_by(self.lasers, rx, ry)
-            hidden = np.column_stack((rx[keep], ry[keep]))
+            hidden = robot[keep]
         box = (np.abs(points[:, 0]) <= self._half_x) & (np.abs(points[:, 1]) <= self._half_y)
         near = points[box]
         near = near[footprint_distances(near, self.length, self.width) <= MEMORY_REACH]
         if len(near) or len(hidden):
-            both = np.vstack((near, hidden))
-            world = np.column_stack(
-                (pose.x + c * both[:, 0] - s * both[:, 1], pose.y + s * both[:, 0] + c * both[:, 1])
-            )
+            world = pose.apply(np.vstack((near, hidden)))
             cells = np.floor(world / MEMORY_CELL).astype(np.int64)
             _, first = np.unique(cells[:, 0] * (1 << 32) + cells[:, 1], return_index=True)
             self._memory = world[np.sort(first)]
