@@ -42,11 +42,8 @@ def test_two_end_lasers_leave_pockets_beside_the_middle_of_the_body():
 def scan_of(p, world: np.ndarray, pose: Pose2) -> np.ndarray:
     """The returns the lasers give of the world points at ``pose``: those in view, robot
     frame."""
-    c, s = math.cos(pose.theta), math.sin(pose.theta)
-    dx, dy = world[:, 0] - pose.x, world[:, 1] - pose.y
-    rx, ry = c * dx + s * dy, c * dy - s * dx
-    view = seen_by(p.lasers.values(), rx, ry)
-    return np.column_stack((rx[view], ry[view]))
+    robot = pose.inverse().apply(world)
+    return robot[seen_by(p.lasers.values(), robot[:, 0], robot[:, 1])]
 
 
 def test_a_post_passed_close_is_remembered_while_it_is_in_a_pocket():

@@ -39,6 +39,7 @@ from behaviours.laws.retreat import (
 )
 from executive.campaign.runner import episode_row
 from executive.campaign.spec import load_campaign
+from executive.core.frames import Pose2
 from executive.core.records import Obstacles, TrackedObstacle, VelocityCommand
 from executive.safety import predict_pose
 from tests.conftest import MISSIONS, blackboard_writer
@@ -500,18 +501,13 @@ def test_the_layer_admits_a_faster_retreat_only_under_a_threat():
 
 def robot_view(b: Bench, world: np.ndarray, hidden=()) -> Obstacles:
     """What the robot on bench ``b`` sees of the returns at ``world`` (airport frame)."""
-    c, s = math.cos(b.th), math.sin(b.th)
-    dx, dy = world[:, 0] - b.x, world[:, 1] - b.y
-    points = np.column_stack((c * dx + s * dy, c * dy - s * dx))
+    points = Pose2(b.x, b.y, b.th).inverse().apply(world)
     obstacles = seen(b.t, points.tolist())
     return dataclasses.replace(obstacles, hidden=np.array(hidden, dtype=float).reshape(-1, 2))
 
 
 def to_world(b: Bench, points: np.ndarray) -> np.ndarray:
-    c, s = math.cos(b.th), math.sin(b.th)
-    return np.column_stack(
-        (b.x + c * points[:, 0] - s * points[:, 1], b.y + s * points[:, 0] + c * points[:, 1])
-    )
+    return Pose2(b.x, b.y, b.th).apply(points)
 
 
 def test_the_layer_lets_a_pinched_robot_out_on_the_arc_the_tree_proposes():
