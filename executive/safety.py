@@ -144,8 +144,7 @@ from behaviours.laws import estop
 from behaviours.laws.estop import OPERATOR as OPERATOR_ESTOP
 from behaviours.laws.estop import EStopLatch
 from behaviours.laws.freshness import Freshness
-from behaviours.laws.obstacles import is_mover, vouched_velocity
-from behaviours.laws.retreat import SLOWDOWN_FLOOR, Retreat, corridor_clearance, slowdown_scale
+from behaviours.laws.retreat import SLOWDOWN_FLOOR, Retreat, corridor_room, slowdown_scale
 from executive.core.frames import AircraftPlacement, FloatArray
 from executive.core.model import Circle, ForbiddenZone, Frame, Mission
 from executive.core.records import (
@@ -153,7 +152,6 @@ from executive.core.records import (
     PanTiltRate,
     PoseEstimate,
     SensorFrame,
-    TrackedObstacle,
     VelocityCommand,
     camera_ids,
 )
@@ -835,9 +833,13 @@ class SafetyLayer:
         tracks = obstacles.tracks
         if abs(v) > self.retreat.top_speed(tracks):
             return False
-        if self.retreat.threatened(tracks) and not self.retreat.no_worse(tracks, v):
+        threat = self.retreat.threatened(tracks)
+        if threat and not self.retreat.no_worse(tracks, v):
             return False
-        return self._closing_clearance(obstacles, v) >= self.retreat.room_for(v)
+        if len(obstacles.points) == 0:  # r_c and its bearing only
+            return self._closing_clearance(obstacles, v) >= self.retreat.room_for(v)
+        room = self.retreat.open_sides(obstacles.points, tracks, threat, abs(v))
+        return room.get(side, -math.inf) >= self.retreat.room_for(v)
 
     def _arc_admitted(self, command: VelocityCommand, obstacles: Obstacles) -> bool:
         """Rule 2's arc: a crawl on an arc no return closes in along
@@ -1022,7 +1024,8 @@ class SafetyLayer:
     def _closing_clearance(self, obstacles: Obstacles, v: float) -> float:
         """r_d: the footprint's distance to the nearest return in the corridor the motion
         ``v`` drives into, or to a tracked mover that will cross that corridor within
-        ``mover_horizon`` (NaN, unknown, stays NaN)."""
+        ``mover_horizon`` (:func:`~behaviours.laws.retreat.corridor_room`; NaN, unknown,
+        stays NaN)."""
         r_c = obstacles.closest
         if not r_c < self.safety.r_oa_trigger or v == 0.0:
             return r_c
@@ -1030,36 +1033,15 @@ class SafetyLayer:
         if len(points) == 0:
             return r_c if v * math.cos(obstacles.bearing) > 0.0 else math.inf
         platform = self.mission.platform
-        half = 0.5 * platform.width + self.safety.r_es
-        side = 1 if v > 0.0 else -1
-        r_d = corridor_clearance(points, side, platform.length, platform.width, self.safety.r_es)
-        for track in obstacles.tracks:
-            if track.clearance < r_d and self._crosses_corridor(track, v, half):
-                r_d = track.clearance
-        return r_d
-
-    def _crosses_corridor(self, track: TrackedObstacle, v: float, half: float) -> bool:
-        """Whether a moving track ahead of the robot enters the corridor it drives into
-        (``x v > 0``, ``|y| <= half`` + the track's size) within ``mover_horizon``, moving
-        relative to the robot at its tracked velocity less the robot's own ``v`` (the
-        motion term of speed-and-separation monitoring: a walker about to step in front
-        of the robot slows it down before it gets there, not once it is there). A mover
-        behind, chasing, never slows the robot down: that would let it catch up."""
-        if not is_mover(track):
-            return False
-        x, y = track.position
-        vx, vy = vouched_velocity(track)
-        if x * v <= 0.0:
-            return False
-        reach = half + track.size
-        if abs(y) <= reach:
-            t0 = 0.0
-        elif abs(vy) < 1e-9 or y * vy > 0.0:
-            return False  # beside the corridor and not moving towards it
-        else:
-            t0 = (abs(y) - reach) / abs(vy)
-        # still ahead of the axle when it enters the corridor (x moves at vx - v)
-        return t0 <= self.mover_horizon and (x + (vx - v) * t0) * v > 0.0
+        return corridor_room(
+            points,
+            obstacles.tracks,
+            v,
+            platform.length,
+            platform.width,
+            self.safety.r_es,
+            self.mover_horizon,
+        )
 
     def _pan_tilt(
         self, requested: Mapping[str, PanTiltRate], clipped: set[str]

@@ -27,8 +27,10 @@ from behaviours.laws.retreat import (
     Retreat,
     closes_in,
     corridor_clearance,
+    corridor_room,
     covered_sides,
     distances_along,
+    enters_corridor,
     heading_clearances,
     movers,
     open_sides,
@@ -301,6 +303,15 @@ def pinch(length: float = L, width: float = W) -> np.ndarray:
 ARCS = Retreat(L, W, R_ES, frozenset({FORWARD, BACKWARD}), max_curvature=2.0)
 
 
+posts = st.lists(
+    st.tuples(st.floats(-1.6, 1.6), st.floats(-1.4, 1.4)).filter(
+        lambda xy: footprint_distances(np.array([xy]), 1.4, 1.0)[0] > 0.1
+    ),
+    min_size=1,
+    max_size=4,
+)
+
+
 @settings(max_examples=100, deadline=None)
 @given(
     v=st.floats(-1.0, 1.0).filter(lambda v: abs(v) > 1e-3),
@@ -499,6 +510,75 @@ def test_the_layer_admits_a_faster_retreat_only_under_a_threat():
     assert is_zero(b.step(cmd(0.6), seen=seen(b.t, pressed), move=False))
 
 
+def blob(x: float, y: float, vx: float, vy: float, size: float, returns: np.ndarray):
+    """A blob track at (x, y), of enclosing radius ``size``, over ``returns``."""
+    clearance = float(footprint_distances(returns, L, W).min())
+    return TrackedObstacle(7, "blob", (x, y), (vx, vy), np.eye(4), size, clearance, 5.0)
+
+
+def test_a_merged_blob_enters_a_corridor_where_its_returns_do_not_its_disc():
+    """Avoidance episode 142: a chaser merged with a cone it passed makes a 1.14 m blob
+    beside the rear right, closing at 0.2 m/s. Its disc reaches across the backward
+    corridor; its returns stop 0.15 m short of it. Backing out at 1.1 m/s the robot is
+    past before they get there; at a crawl it is not; returns in the corridor count at
+    any speed."""
+    half = 0.5 * W + R_ES
+    returns = np.array([[-1.4, -2.2], [-0.9, -1.7], [-0.5, -half - 0.15], [0.4, -1.6]])
+    track = blob(-0.48, -1.62, 0.0, 0.2, 1.14, returns)
+    assert abs(track.position[1]) - track.size < half  # the disc is across the corridor
+    assert enters_corridor(track, -1.1, half)  # judged by its disc
+    assert not enters_corridor(track, -1.1, half, points=returns)
+    assert enters_corridor(track, -RETREAT_SPEED, half, points=returns)  # 0.75 s, still behind
+    assert corridor_room(returns, [track], -1.1, L, W, R_ES) == math.inf
+    assert corridor_room(returns, [track], -RETREAT_SPEED, L, W, R_ES) == track.clearance
+    inside = np.vstack((returns, [[-1.2, -half + 0.05]]))
+    crossing = blob(-0.48, -1.62, 0.0, 0.2, 1.14, inside)
+    assert enters_corridor(crossing, -1.1, half, points=inside)
+    assert not enters_corridor(crossing, 1.1, half, points=inside)  # behind the motion
+
+
+movers_strategy = st.lists(
+    st.tuples(
+        st.floats(-2.5, 2.5),
+        st.floats(-2.5, 2.5),
+        st.floats(-1.0, 1.0),
+        st.floats(-1.0, 1.0),
+        st.floats(0.1, 1.2),
+        st.floats(-math.pi, math.pi),
+    ),
+    max_size=3,
+)
+
+
+@settings(max_examples=150, deadline=None)
+@given(posts, movers_strategy)
+def test_property_the_layer_admits_the_retreat_the_tree_proposes(centres, tracked):
+    """One rule for both: from rest under an obstacle latch, whatever the posts and the
+    movers (blobs whose disc encloses more than their returns), a retreat the tree
+    proposes (:meth:`Retreat.motion`) is one the safety layer lets through. Before, the
+    layer closed a corridor for a mover's disc that the tree's returns left open, and
+    the robot stood while the walker it was escaping struck it (episode 142)."""
+    p = mission().platform
+    points = [xy for c in centres for xy in post(*c)]
+    tracks = []
+    for i, (x, y, vx, vy, size, angle) in enumerate(tracked):
+        along = np.linspace(-size, size, 7)[:, None] * [math.cos(angle), math.sin(angle)]
+        own = np.array([x, y]) + along
+        clearance = float(footprint_distances(own, p.length, p.width).min())
+        assume(clearance > 0.05)
+        points += own.tolist()
+        tracks.append(TrackedObstacle(i, "blob", (x, y), (vx, vy), np.eye(4), size, clearance, 5.0))
+    b = Bench(layer())
+    view = seen(b.t, points, tracks)
+    assume(view.closest < R_ES)
+    proposal = b.layer.retreat.motion(view.points, view.closest, tracks)
+    out = b.step(cmd(*proposal), seen=view, move=False)
+    assert b.layer.status.estop_latched
+    assert b.layer.status.retreating == (proposal != (0.0, 0.0))
+    if proposal != (0.0, 0.0):
+        assert out.v * proposal[0] >= 0.0 and not b.layer.status.forced_stop
+
+
 def robot_view(b: Bench, world: np.ndarray, hidden=()) -> Obstacles:
     """What the robot on bench ``b`` sees of the returns at ``world`` (airport frame)."""
     points = Pose2(b.x, b.y, b.th).inverse().apply(world)
@@ -597,15 +677,6 @@ def test_an_arc_the_geofence_would_bend_stops_the_robot():
     assert not status.retreating and status.stopped_reason.startswith("geofence")
 
 
-posts = st.lists(
-    st.tuples(st.floats(-1.6, 1.6), st.floats(-1.4, 1.4)).filter(
-        lambda xy: footprint_distances(np.array([xy]), 1.4, 1.0)[0] > 0.1
-    ),
-    min_size=1,
-    max_size=4,
-)
-
-
 @settings(max_examples=60, deadline=None)
 @given(
     posts,
@@ -669,6 +740,18 @@ def test_campaign_episode_pinched_at_two_corners_completes():
     for 100 s (a timeout); the arc out of the pinch frees it and the leg completes."""
     campaign = load_campaign(MISSIONS / "campaigns" / "avoidance-leg.xml")
     row = episode_row(campaign, 100)
+    assert row["succeeded"], row["causes"]
+    assert row["collisions"] == []
+
+
+def test_campaign_episode_escaping_beside_a_merged_blob_completes():
+    """Avoidance campaign episode 142: latched by a walker from the front left, the robot
+    is to escape backwards fast, beside a chaser merged with a cone into one blob. The
+    layer refused the escape (the blob's disc across the backward corridor) and the robot
+    stood until the walker struck it; judged by the blob's returns, like the tree, the
+    escape goes through and the leg completes."""
+    campaign = load_campaign(MISSIONS / "campaigns" / "avoidance-leg.xml")
+    row = episode_row(campaign, 142)
     assert row["succeeded"], row["causes"]
     assert row["collisions"] == []
 

@@ -276,12 +276,84 @@ def predicted_gap(
     return min((p.gap for p in found), default=math.inf)
 
 
+def enters_corridor(
+    track: TrackedObstacle,
+    v: float,
+    half: float,
+    horizon: float = THREAT_HORIZON,
+    points: FloatArray | None = None,
+) -> bool:
+    """Whether a moving track ahead of a robot driving at ``v`` (m/s, robot frame) enters
+    the corridor it drives into (``x v > 0``, ``|y| <= half``) within ``horizon``
+    seconds, moving relative to the robot at its vouched velocity less the robot's own
+    ``v`` (the motion term of speed-and-separation monitoring: a walker about to step in
+    front of the robot counts before it gets there, not once it is there). A mover
+    behind, chasing, never does: slowing for it would let it catch up.
+
+    Where the track is, across the corridor: its disc (``size`` about its position), or,
+    given the returns (``points``, robot frame), the returns within that disc, the
+    nearest to the axis first. A cluster merged with what it passes encloses far more
+    than it holds (avoidance episode 142: a 1.14 m disc over a chaser and a cone, half
+    of it across a corridor that none of its returns were in)."""
+    if not is_mover(track):
+        return False
+    x, y = track.position
+    vx, vy = vouched_velocity(track)
+    if x * v <= 0.0:
+        return False
+    gap = abs(y) - track.size - half  # across, from the corridor's edge
+    if points is not None and len(points):
+        own = points[np.hypot(points[:, 0] - x, points[:, 1] - y) <= track.size + 1e-6]
+        if len(own):
+            gap = max(gap, float(np.abs(own[:, 1]).min()) - half)
+    if gap <= 0.0:
+        t0 = 0.0
+    elif abs(vy) < 1e-9 or y * vy > 0.0:
+        return False  # beside the corridor and not moving towards it
+    else:
+        t0 = gap / abs(vy)
+    # still ahead of the axle when it enters the corridor (x moves at vx - v)
+    return t0 <= horizon and (x + (vx - v) * t0) * v > 0.0
+
+
+def corridor_room(
+    points: FloatArray,
+    tracks: Iterable[TrackedObstacle],
+    v: float,
+    length: float,
+    width: float,
+    r_es: float,
+    horizon: float = THREAT_HORIZON,
+) -> float:
+    """The room (m) ahead of a motion at ``v`` (its sign picks the side): the
+    :func:`corridor_clearance` of the returns, or the clearance of a tracked mover that
+    :func:`enters_corridor` within ``horizon``, whichever is smaller. The slowdown zone's
+    r_d, and a straight retreat's room when no mover threatens."""
+    side = 1 if v > 0.0 else -1
+    room = corridor_clearance(points, side, length, width, r_es)
+    half = 0.5 * width + r_es
+    for track in tracks:
+        if track.clearance < room and enters_corridor(track, v, half, horizon, points):
+            room = track.clearance
+    return room
+
+
 def open_sides(
-    points: FloatArray, sides: Iterable[int], length: float, width: float, r_es: float
+    points: FloatArray,
+    sides: Iterable[int],
+    length: float,
+    width: float,
+    r_es: float,
+    tracks: Iterable[TrackedObstacle] = (),
+    speed: float = RETREAT_SPEED,
 ) -> dict[int, float]:
-    """The covered ``sides`` whose corridor holds no return inside r_ES, each with its
-    room (the corridor's clearance, m)."""
-    room = {side: corridor_clearance(points, side, length, width, r_es) for side in sides}
+    """The covered ``sides`` whose corridor holds no return inside r_ES and no mover of
+    ``tracks`` about to enter it that close at ``speed`` (:func:`corridor_room`), each
+    with its room (m)."""
+    tracks = tuple(tracks)
+    room = {
+        side: corridor_room(points, tracks, side * speed, length, width, r_es) for side in sides
+    }
     return {side: clear for side, clear in room.items() if clear >= r_es}
 
 
@@ -375,6 +447,23 @@ class Retreat:
         fastest = max((math.hypot(*vouched_velocity(t)) for t in movers(tracks)), default=0.0)
         return min(self.max_speed, max(RETREAT_SPEED, ESCAPE_FACTOR * fastest))
 
+    def open_sides(
+        self,
+        points: FloatArray,
+        tracks: tuple[TrackedObstacle, ...],
+        threat: bool,
+        speed: float = RETREAT_SPEED,
+    ) -> dict[int, float]:
+        """The sides a straight retreat may take, each with its room (m): one rule for the
+        tree that proposes and the safety layer that admits. Under a threat
+        (:meth:`threatened`) the returns' corridors (:func:`open_sides`): the movers are
+        judged by their :func:`predictions` against the retreat (:meth:`no_worse`), and
+        a merged track's disc overlapping a corridor its returns leave open does not
+        close it (avoidance episode 142). Otherwise a mover about to enter a corridor
+        counts too, with its clearance (:func:`corridor_room`, at ``speed``)."""
+        movers = () if threat else tracks
+        return open_sides(points, self.sides, self.length, self.width, self.r_es, movers, speed)
+
     def stopping(self, speed: float) -> float:
         """How far (m) a retreat at ``speed`` may still travel once told to stop: one
         :data:`REACTION` period, the jerk-limited ramp into full braking, then braking at
@@ -423,11 +512,11 @@ class Retreat:
         nearest return (``closest``, r_c) is :data:`RETREAT_CLEARANCE` beyond r_ES, and
         under a threat only when it is :meth:`no_worse` than standing."""
         tracks = tuple(tracks)
-        room = open_sides(points, self.sides, self.length, self.width, self.r_es)
-        if not room:
-            return 0.0
         standing = self.predict(tracks, 0.0)
         threat = any(p.intrusion < math.inf for p in standing)  # :meth:`threatened`
+        room = self.open_sides(points, tracks, threat)
+        if not room:
+            return 0.0
         if threat:
             candidates, scores = [], []
             for v in np.linspace(RETREAT_SPEED, self.top_speed(tracks), ESCAPE_SPEEDS):
@@ -509,7 +598,7 @@ class Retreat:
         straight = self.speed(points, closest, tracks)
         if not closest < self.r_es + RETREAT_CLEARANCE or self.threatened(tracks):
             return straight, 0.0
-        room = open_sides(points, self.sides, self.length, self.width, self.r_es)
+        room = self.open_sides(points, tracks, False)
         options = [(side * RETREAT_SPEED, 0.0) for side in room]
         if self.max_curvature > 0.0 and len(points):
             options += [
