@@ -27,10 +27,15 @@ class Goal:
 
     def in_airport(self, estimate: PoseEstimate | None) -> Pose2:
         """The goal in A with the estimate's aircraft placement (heading in A)."""
+        return self.resolve(self.pose, estimate)
+
+    def resolve(self, pose: Pose2, estimate: PoseEstimate | None) -> Pose2:
+        """``pose``, given in this goal's frame, in A with the estimate's aircraft
+        placement (heading in A)."""
         if self.frame is Frame.AIRPORT:
-            return self.pose
+            return pose
         placement = estimate.placement if estimate is not None else None
         placement = placement or self.nominal
         if placement is None:
             raise ValueError("an aircraft-frame goal needs a placement")
-        return placement.pose_to_airport(self.pose)
+        return placement.pose_to_airport(pose)

@@ -7,6 +7,7 @@ compiler checks at compile time that every key read has a writer that runs befor
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from executive.core.records import (
@@ -91,6 +92,11 @@ class ServoStatus:
     servo_s: tuple[tuple[str, float], ...] = ()
     switches: tuple[tuple[float, str], ...] = ()
     """Every task switch of this servo (mode or driving camera) with its time and reason."""
+    start: float = math.nan
+    """Where this servo started, in metres before the checkpoint on its heading line."""
+    start_note: str = ""
+    """Why the servo start was moved from where the compiler put it ("" when it was not:
+    :class:`behaviours.controllers.servo.SlideServoStart`)."""
 
 
 @dataclass(frozen=True, slots=True)

@@ -105,6 +105,8 @@ from behaviours.controllers.servo import (
     FeaturesVisible,
     ServoParams,
     ServoSession,
+    ServoStartGoal,
+    SlideServoStart,
     TrackFeature,
     VisualServoing,
 )
@@ -148,7 +150,9 @@ NEAR_AIRFRAME = 3.0
 SERVO_START = 1.0
 """Visual servoing starts this far (m) behind the checkpoint on its heading line, reached
 by metric go-to-goal: the camera's straight approach then keeps the base's heading (four
-controls, five configuration variables: behaviours/controllers/servo.py)."""
+controls, five configuration variables: behaviours/controllers/servo.py). A start the
+lasers show too close to something to turn in place at slides towards the checkpoint
+(:class:`~behaviours.controllers.servo.SlideServoStart`)."""
 
 SERVO_START_TOLERANCE = (0.02, math.radians(0.5))
 """Position (m) and heading (rad) tolerances of the servo start: a flat target seen
@@ -430,12 +434,14 @@ class _Builder:
         servo: ServoSession | None = None,
         aim: ServoSession | None = None,
         checkpoint: str | None = None,
+        prepare: py_trees.behaviour.Behaviour | None = None,
     ) -> py_trees.behaviour.Behaviour:
         """One navigation: its guards, then metric go-to-goal. ``servo``: the checkpoint's
         visual-servoing branches; ``aim`` (or ``servo``): go-to-goal keeps the servo units
         aimed at that session's target (:class:`AimedGoToGoal`). ``checkpoint``: the
         navigation leads to that checkpoint, whose trap asks the operator when one is at
-        hand (:attr:`CompileOptions.ask_operator`)."""
+        hand (:attr:`CompileOptions.ask_operator`). ``prepare``: a behaviour ticked first
+        every tick, that always succeeds (:class:`SlideServoStart` moves the goal)."""
         params = dataclasses.replace(
             self.params,
             position_tolerance=tolerance[0],
@@ -476,10 +482,11 @@ class _Builder:
                 goto,
             ],
         )
+        first = [prepare] if prepare is not None else []
         return Sequence(
             f"navigate {label}",
             memory=False,
-            children=[self.trap(label, goal, tolerance[0], checkpoint), guards],
+            children=[*first, self.trap(label, goal, tolerance[0], checkpoint), guards],
         )
 
     def trap(
@@ -656,20 +663,23 @@ class _Builder:
                 )
                 self.servo_sessions.append(servo)
                 if servo.drivable:
-                    h = cp.pose.theta  # F is mirrored, but +x_R still maps to (cos h, sin h)
-                    start = Pose2(
-                        cp.pose.x - SERVO_START * math.cos(h),
-                        cp.pose.y - SERVO_START * math.sin(h),
-                        h,
+                    label = f"{cp.id} servo start"
+                    slide = SlideServoStart(
+                        servo,
+                        Goal(cp.pose, Frame.AIRCRAFT, self.placement),
+                        m.platform,
+                        m.safety.r_es,
+                        name=f"slide {label}",
                     )
                     children.append(
                         self.navigate(
-                            f"{cp.id} servo start",
-                            Goal(start, Frame.AIRCRAFT, self.placement),
+                            label,
+                            ServoStartGoal(servo.start_f(), Frame.AIRCRAFT, self.placement, servo),
                             True,
                             SERVO_START_TOLERANCE,
                             aim=servo,
                             checkpoint=cp.id,
+                            prepare=slide,
                         )
                     )
                 else:

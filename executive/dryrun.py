@@ -369,6 +369,8 @@ class _Watcher:
                 "reconstructed_s": servo.reconstructed_s,
                 **{f"{mode}_s": t for mode, t in servo.servo_s},
                 "switches": [{"t": t, "reason": why} for t, why in servo.switches],
+                "start_m": servo.start,
+                **({"start_note": servo.start_note} if servo.start_note else {}),
             }
         if isinstance(progress, MissionProgress) and progress.completed != self.completed_seen:
             for cp_id in progress.completed[len(self.completed_seen) :]:

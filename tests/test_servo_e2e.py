@@ -101,3 +101,24 @@ def test_lab_with_a_person_occluding_and_a_frozen_camera(disturbed_run):
         and "on front-left" in sw["reason"]
         for sw in switches
     ), switches
+
+
+def test_lab_with_a_cone_behind_a_servo_start_slides_it_and_servoes_from_there():
+    """A cone 0.64 m behind the robot standing at CP2's servo start (4 cm beyond r_ES, as
+    the fuel truck behind the A320's CP10 on a busy apron): before, every turn there swung
+    a rear corner into r_ES and the navigation was trapped ("no progress towards CP2
+    servo start for 120 s", 19 e-stop latches). The start slides towards CP2 until the
+    robot can turn there; CP2 is still finished by servoing within 2 cm and 0.5 deg."""
+    run = dry_run(load_scenario(LAB / "cone-behind-servo-start.xml"), servo=True)
+    _assert_accurate(run)
+    assert "CP2" in assert_finished_by_servoing(run)
+    servo = metrics(run)["servo"]
+    assert servo["CP1"]["start_m"] == 1.0 and "start_note" not in servo["CP1"]
+    assert 0.4 <= servo["CP2"]["start_m"] < 1.0
+    assert "servo start slid from 1.00 m" in servo["CP2"]["start_note"]
+    latches = [
+        e.t
+        for e in run.result.events
+        if e.kind == "safety" and e.detail.get("kind") == "estop-latched"
+    ]
+    assert len(latches) <= 2, latches

@@ -55,16 +55,19 @@ The checkpoint is reached when Algorithm 3.1's stop criterion holds on the comma
 Four controls steer five configuration variables (base x, y, theta, pan, tilt): one
 camera pose leaves the base heading free along a family (turn the base about the pan
 axis, pan back). The compiler therefore starts servoing from a point behind the
-checkpoint on its heading line (metric); on the way in, a task row from the localisation
-steers the base back onto that line (:func:`behaviours.laws.servo.approach_line_row`:
-the lateral offset is what no command reaches at the goal and what the image hardly
-tells from a rotation), and :class:`behaviours.controllers.motion.CorrectCameraAngle`
-then turns the base in place until the *measured* pan of the driving unit equals
-``pan*`` (the heading the judge checks).
+checkpoint on its heading line (metric; :class:`SlideServoStart` moves it towards the
+checkpoint where the robot could not turn in place there); on the way in, a task row
+from the localisation steers the base back onto that line
+(:func:`behaviours.laws.servo.approach_line_row`: the lateral offset is what no command
+reaches at the goal and what the image hardly tells from a rotation), and
+:class:`behaviours.controllers.motion.CorrectCameraAngle` then turns the base in place
+until the *measured* pan of the driving unit equals ``pan*`` (the heading the judge
+checks).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections import deque
 from collections.abc import Callable, Mapping
@@ -73,10 +76,10 @@ from dataclasses import dataclass, field
 import numpy as np
 import py_trees
 
-from behaviours.base import Controller, Guard
+from behaviours.base import Controller, Guard, Node
 from behaviours.controllers.motion import GoToGoalController
 from behaviours.goals import Goal
-from behaviours.keys import COMMAND, FEATURES, POSE, SENSOR_FRAME, SERVO, ServoStatus
+from behaviours.keys import COMMAND, FEATURES, OBSTACLES, POSE, SENSOR_FRAME, SERVO, ServoStatus
 from behaviours.laws.augmented_image import (
     MIN_REAL_POINTS,
     AugmentedImage,
@@ -95,6 +98,7 @@ from behaviours.laws.interaction import (
     project_points,
 )
 from behaviours.laws.localisation import wheel_odometry
+from behaviours.laws.obstacles import is_mover
 from behaviours.laws.pose_estimation import camera_pose_from_points, is_well_posed
 from behaviours.laws.robot_jacobian import PanTiltCamera, robot_jacobian_eq_3_2
 from behaviours.laws.servo import (
@@ -103,6 +107,12 @@ from behaviours.laws.servo import (
     approach_depth_row,
     approach_line_row,
     stop_algorithm_3_1,
+)
+from behaviours.laws.servo_start import (
+    SERVO_START_MARGIN,
+    candidate_distances,
+    start_distance,
+    turning_radius,
 )
 from executive.core.frames import (
     Pose2,
@@ -113,6 +123,7 @@ from executive.core.frames import (
 from executive.core.model import CameraKind, CameraSpec, Feature, Platform
 from executive.core.records import (
     FeatureObservations,
+    Obstacles,
     PanTilt,
     PanTiltRate,
     PoseEstimate,
@@ -419,6 +430,10 @@ class ServoSession:
         """When the features were lost while servoing (None: not lost, or never servoed)."""
         self.last_driver: ServoCamera | None = None
         """The camera that drove last (its unit's pan was servoed to ``pan*``)."""
+        self.start_note = ""
+        """Why the servo start was slid towards the checkpoint ("": it was not)."""
+        self.compiled_start = self.params.line_from
+        """Where the compiler put the servo start (m before the checkpoint)."""
         self.track_error_px: float | None = None
         """How far (px) the tracked camera's detections are from their desired pixels."""
         self.tracked: ServoCamera | None = None
@@ -684,7 +699,27 @@ class ServoSession:
             reconstructed_s=round(self.reconstructed_s, 3),
             servo_s=tuple((k, round(v, 3)) for k, v in self.servo_s.items()),
             switches=tuple((round(t, 2), why) for t, why in self.switches),
+            start=self.start_distance,
+            start_note=self.start_note,
         )
+
+    @property
+    def start_distance(self) -> float:
+        """Where servoing starts: metres before the checkpoint on its heading line (the
+        approach line's row fades in from there, :attr:`ServoParams.line_from`)."""
+        return self.params.line_from
+
+    def start_f(self) -> Pose2:
+        """The servo start in F: :attr:`start_distance` behind the checkpoint, facing
+        its heading (F is mirrored, but +x_R still maps to (cos h, sin h))."""
+        cp, d = self.checkpoint_f, self.start_distance
+        return Pose2(cp.x - d * math.cos(cp.theta), cp.y - d * math.sin(cp.theta), cp.theta)
+
+    def slide_start(self, distance: float, why: str) -> None:
+        """Start servoing ``distance`` m before the checkpoint instead (a shorter run),
+        for the reason ``why`` (the report's)."""
+        self.params = dataclasses.replace(self.params, line_from=distance)
+        self.start_note = why
 
     # -- control -----------------------------------------------------------------------------
     def command(self) -> tuple[VelocityCommand, bool, str]:
@@ -1008,6 +1043,64 @@ class VisualServoing(Controller):
         self.write(COMMAND, VelocityCommand.stop() if done else command)
         self.feedback_message = ("stop criterion (Algorithm 3.1) holds; " if done else "") + why
         return Status.SUCCESS if done else Status.RUNNING
+
+
+@dataclass(frozen=True, slots=True)
+class ServoStartGoal(Goal):
+    """The servo start of ``session``'s checkpoint as a navigation goal, where the session
+    has it now (:meth:`ServoSession.start_f`: :class:`SlideServoStart` may move it towards
+    the checkpoint); ``pose`` is where the compiler put it."""
+
+    session: ServoSession | None = field(default=None, compare=False)
+
+    def in_airport(self, estimate: PoseEstimate | None) -> Pose2:
+        return self.resolve(self.pose if self.session is None else self.session.start_f(), estimate)
+
+
+class SlideServoStart(Node):
+    """Slide a servo start the robot could not turn at towards its checkpoint
+    (:mod:`behaviours.laws.servo_start`), every tick the navigation to it runs, from the
+    lasers' returns: the first start along the heading line, from where it is now towards
+    :data:`~behaviours.laws.servo_start.SHORTEST_RUN` before the checkpoint, whose turning
+    disc clears every return but the movers' (tracked, :func:`is_mover`: a walker passing
+    by moves nothing) by r_ES and :data:`SERVO_START_MARGIN`. A start only ever slides
+    forwards, so the goal settles. Always SUCCESS: it only moves the goal."""
+
+    reads = (OBSTACLES, POSE)
+
+    def __init__(
+        self, session: ServoSession, checkpoint: Goal, platform: Platform, r_es: float, name: str
+    ) -> None:
+        super().__init__(name)
+        self.session = session
+        self.checkpoint = checkpoint
+        self.need = turning_radius(platform.length, platform.width) + r_es + SERVO_START_MARGIN
+
+    def update(self) -> Status:
+        obstacles: Obstacles | None = self.read(OBSTACLES)
+        pose: PoseEstimate | None = self.read(POSE)
+        if obstacles is None or pose is None or len(obstacles.points) == 0:
+            return Status.SUCCESS
+        points = obstacles.points
+        for track in obstacles.tracks:
+            if is_mover(track):
+                off = np.hypot(points[:, 0] - track.position[0], points[:, 1] - track.position[1])
+                points = points[off > track.size + 0.1]
+        returns = pose.pose_a.apply(points)
+        cp = self.checkpoint.in_airport(pose)
+        now = self.session.start_distance
+        distance, gap = start_distance(
+            returns, (cp.x, cp.y, cp.theta), candidate_distances(now), self.need
+        )
+        if distance < now - 1e-9:
+            self.session.slide_start(
+                distance,
+                f"servo start slid from {self.session.compiled_start:.2f} m to "
+                f"{distance:.2f} m before the checkpoint: a return {gap:.2f} m from its "
+                f"centre, {self.need:.2f} m needed to turn in place there",
+            )
+            self.feedback_message = self.session.start_note
+        return Status.SUCCESS
 
 
 class AimedGoToGoal(GoToGoalController):
