@@ -39,7 +39,8 @@ def test_candidates_run_from_the_start_to_the_shortest_run():
     d = candidate_distances(1.0)
     assert d[0] == 1.0 and d[-1] == pytest.approx(SHORTEST_RUN)
     assert np.allclose(np.diff(d), -SLIDE_STEP)
-    assert list(candidate_distances(0.3)) == [0.3]  # already shorter: stays
+    assert list(candidate_distances(0.3, 0.5)) == [0.3]  # already shorter: stays
+    assert list(candidate_distances(0.0)) == [0.0]  # on the checkpoint
 
 
 def test_a_start_slides_along_the_heading_line_until_the_robot_can_turn_there():

@@ -754,8 +754,8 @@ class ServoSession:
         # is steered out on the way there, from the localisation (module docstring)
         line = self._approach_line()
         fade = 0.0
-        if line is not None:
-            span = max(p.line_from - p.line_until, 1e-9)
+        if line is not None and p.line_from > p.line_until:  # a start slid closer: no row
+            span = p.line_from - p.line_until
             fade = min(1.0, max(0.0, (line[1] - p.line_until) / span))
         # the secondary row pan -> pan* (module docstring): it picks the member of the
         # family of base poses that share one camera pose, which L J alone leaves
@@ -1061,7 +1061,7 @@ class SlideServoStart(Node):
     """Slide a servo start the robot could not turn at towards its checkpoint
     (:mod:`behaviours.laws.servo_start`), every tick the navigation to it runs, from the
     lasers' returns: the first start along the heading line, from where it is now towards
-    :data:`~behaviours.laws.servo_start.SHORTEST_RUN` before the checkpoint, whose turning
+    :data:`~behaviours.laws.servo_start.SHORTEST_RUN` before the checkpoint (onto it), whose turning
     disc clears every return but the movers' (tracked, :func:`is_mover`: a walker passing
     by moves nothing) by r_ES and :data:`SERVO_START_MARGIN`. A start only ever slides
     forwards, so the goal settles. Always SUCCESS: it only moves the goal."""

@@ -33,10 +33,15 @@ settling on the start's heading never trips the e-stop."""
 SLIDE_STEP = 0.05
 """Metres between the servo starts tried along the heading line."""
 
-SHORTEST_RUN = 0.4
-"""The shortest servo run (m) a start may slide to: the approach line's row fades out
-0.25 m before the checkpoint (:class:`~behaviours.controllers.servo.ServoParams`), so a
-start closer than this leaves it nothing to steer."""
+SHORTEST_RUN = 0.0
+"""The shortest servo run (m) a start may slide to: none. The start is reached with the
+checkpoint's own tolerances (2 cm, 0.5 deg), so a start slid onto the checkpoint is the
+checkpoint reached by metric go-to-goal, which the servo then refines on the image alone
+(the approach line's row, which fades out 0.25 m before the checkpoint, has nothing left
+to steer). A shorter run loses the row's correction of a sideways offset; a start the
+robot cannot turn at loses the checkpoint (A320 busy apron, episodes 36 and 73: CP10's
+start still 1.36-1.44 m from the fuel truck's flank 0.4 m before the checkpoint, 1.56 m
+needed)."""
 
 
 def turning_radius(length: float, width: float) -> float:
