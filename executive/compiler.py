@@ -355,6 +355,8 @@ class CompileOptions:
     """Reach checkpoints with a servo target by visual servoing (issue 13). None: on the
     aircraft types of :data:`SERVO_VERIFIED`; True: everywhere; False: never (metric)."""
     servo_params: ServoParams | None = None
+    """The servo's tuning (None: the mission's speeds); its ``line_from`` is always the
+    servo start, :data:`SERVO_START` (the compiler checks the approach from there)."""
 
 
 @dataclass
@@ -654,8 +656,9 @@ class _Builder:
                     m.platform,
                     m.aircraft.origin_height,
                     method,
-                    self.options.servo_params
-                    or ServoParams(
+                    dataclasses.replace(self.options.servo_params, line_from=SERVO_START)
+                    if self.options.servo_params is not None
+                    else ServoParams(
                         max_speed=min(m.navigation.inspection_speed, SERVO_SPEED),
                         max_omega=m.platform.max_angular_speed / 2,
                         line_from=SERVO_START,

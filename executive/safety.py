@@ -29,8 +29,12 @@ the e-stop, faults and the geofence always win over the tree):
    other command is stopped as before; a robot still turning is stopped first, so that
    the output is straight from the retreat's first tick), into a corridor the lasers
    cover and that holds no return inside r_es (beyond the crawl: r_es plus the
-   retreat's stopping distance) and no tracked mover about to enter it (the slowdown's
-   r_d, rule 4), with no fault and no stale data. A robot pinched at two corners, where
+   retreat's stopping distance) and, while no mover threatens, no tracked mover about
+   to enter it within :data:`~behaviours.laws.retreat.THREAT_HORIZON` (under a threat
+   the movers are judged by their predictions, as above), with no fault and no stale
+   data: the rule the tree proposes by
+   (:meth:`~behaviours.laws.retreat.Retreat.open_sides`), so that what the tree proposes
+   the layer lets through. A robot pinched at two corners, where
    no straight crawl gains ground, may instead take an *arc* at a crawl
    (:meth:`~behaviours.laws.retreat.Retreat.arc_admitted`): ``|v| <=`` the crawl,
    curvature within the platform's retreat arcs, no return (seen, or remembered in the
@@ -66,6 +70,7 @@ the e-stop, faults and the geofence always win over the tree):
    of the axle for v > 0, behind it for v < 0, and within half the robot's width + r_es
    of its axis (r_c itself when only r_c and its bearing are known and the bearing lies
    that way). A tracked mover that will enter that corridor within ``mover_horizon``
+   (placed across it by its returns, :func:`~behaviours.laws.retreat.enters_corridor`)
    (default 3 s) at its tracked velocity counts as in it, with its current clearance: a
    walker about to cross the robot's way slows it before stepping in front of it.
    Driving away from an obstacle, or sideways past a static one, is not slowed, so

@@ -535,6 +535,13 @@ def test_a_merged_blob_enters_a_corridor_where_its_returns_do_not_its_disc():
     crossing = blob(-0.48, -1.62, 0.0, 0.2, 1.14, inside)
     assert enters_corridor(crossing, -1.1, half, points=inside)
     assert not enters_corridor(crossing, 1.1, half, points=inside)  # behind the motion
+    # a blob whose centre lies across the axis from the returns that cross first: those
+    # above it move down into the corridor (0.05 m in 0.17 s); those below move away
+    split = np.array([[2.0, half + 0.05], [2.2, -half - 0.3]])
+    for vy, enters in ((-0.3, True), (0.3, True), (0.0, False)):
+        track = blob(2.0, -0.2, 0.0, vy, 1.3, split)
+        assert enters_corridor(track, 1.0, half, points=split) == enters, vy
+    assert not enters_corridor(blob(2.0, 1.8, 0.0, 0.3, 0.3, split[:1] + 0.7), 1.0, half)
 
 
 movers_strategy = st.lists(

@@ -1063,8 +1063,10 @@ class SlideServoStart(Node):
     lasers' returns: the first start along the heading line, from where it is now towards
     :data:`~behaviours.laws.servo_start.SHORTEST_RUN` before the checkpoint (onto it), whose turning
     disc clears every return but the movers' (tracked, :func:`is_mover`: a walker passing
-    by moves nothing) by r_ES and :data:`SERVO_START_MARGIN`. A start only ever slides
-    forwards, so the goal settles. Always SUCCESS: it only moves the goal."""
+    by moves nothing; the returns within a mover's disc are left out, so a cluster merged
+    with what it passes hides that too) by r_ES and :data:`SERVO_START_MARGIN`. A start
+    only ever slides forwards, so the goal settles (a person who stood there for a while
+    shortens the run for good). Always SUCCESS: it only moves the goal."""
 
     reads = (OBSTACLES, POSE)
 
@@ -1093,11 +1095,13 @@ class SlideServoStart(Node):
             returns, (cp.x, cp.y, cp.theta), candidate_distances(now), self.need
         )
         if distance < now - 1e-9:
+            was = start_distance(returns, (cp.x, cp.y, cp.theta), [now], self.need)[1]
             self.session.slide_start(
                 distance,
                 f"servo start slid from {self.session.compiled_start:.2f} m to "
-                f"{distance:.2f} m before the checkpoint: a return {gap:.2f} m from its "
-                f"centre, {self.need:.2f} m needed to turn in place there",
+                f"{distance:.2f} m before the checkpoint: a return {was:.2f} m from the "
+                f"centre of the start {now:.2f} m before it ({self.need:.2f} m needed to "
+                f"turn in place), {gap:.2f} m from the new one",
             )
             self.feedback_message = self.session.start_note
         return Status.SUCCESS

@@ -32,10 +32,11 @@ same way out, under rules that never bring the robot closer to anything:
   layer can ramp both speeds along the same arc), and only while no mover threatens.
 
 The tree proposes the retreat (:class:`behaviours.controllers.motion.EStopHold`, with
-:meth:`Retreat.motion`); the safety layer admits a straight one only when the same
-corridor rule holds, no tracked mover is about to enter that corridor, and, under a
-threat, the retreat is :meth:`Retreat.no_worse` than standing, and an arc only when
-:meth:`Retreat.arc_admitted` (executive/safety.py, rule 2).
+:meth:`Retreat.motion`); the safety layer admits a straight one by the same rule
+(:meth:`Retreat.open_sides`: the corridor's returns, and, while no mover threatens, the
+movers about to enter it; under a threat the retreat must be :meth:`Retreat.no_worse`
+than standing), and an arc only when :meth:`Retreat.arc_admitted` (executive/safety.py,
+rule 2).
 """
 
 from __future__ import annotations
@@ -291,27 +292,31 @@ def enters_corridor(
     behind, chasing, never does: slowing for it would let it catch up.
 
     Where the track is, across the corridor: its disc (``size`` about its position), or,
-    given the returns (``points``, robot frame), the returns within that disc, the
-    nearest to the axis first. A cluster merged with what it passes encloses far more
-    than it holds (avoidance episode 142: a 1.14 m disc over a chaser and a cone, half
-    of it across a corridor that none of its returns were in)."""
+    given the returns (``points``, robot frame), the returns within that disc: in the
+    corridor, or the nearest to it of those on the side it moves away from (they cross
+    first). A cluster merged with what it passes encloses far more than it holds
+    (avoidance episode 142: a 1.14 m disc over a chaser and a cone, half of it across a
+    corridor that none of its returns were in)."""
     if not is_mover(track):
         return False
     x, y = track.position
     vx, vy = vouched_velocity(track)
     if x * v <= 0.0:
         return False
-    gap = abs(y) - track.size - half  # across, from the corridor's edge
+    ys = np.array([y - track.size, y + track.size])  # the disc's extent across
     if points is not None and len(points):
         own = points[np.hypot(points[:, 0] - x, points[:, 1] - y) <= track.size + 1e-6]
         if len(own):
-            gap = max(gap, float(np.abs(own[:, 1]).min()) - half)
-    if gap <= 0.0:
-        t0 = 0.0
-    elif abs(vy) < 1e-9 or y * vy > 0.0:
-        return False  # beside the corridor and not moving towards it
+            ys = own[:, 1]
+    if (np.abs(ys) <= half).any() or (ys.min() < -half and ys.max() > half):
+        t0 = 0.0  # in the corridor, or across it
+    elif abs(vy) < 1e-9:
+        return False  # beside the corridor and not moving across
     else:
-        t0 = gap / abs(vy)
+        towards = ys[ys * vy < 0.0]  # on the side it moves away from: closing on the axis
+        if len(towards) == 0:
+            return False  # all on the side it moves towards: moving away from the corridor
+        t0 = (float(np.abs(towards).min()) - half) / abs(vy)
     # still ahead of the axle when it enters the corridor (x moves at vx - v)
     return t0 <= horizon and (x + (vx - v) * t0) * v > 0.0
 
@@ -508,7 +513,8 @@ class Retreat:
         movers come inside r_ES and reach the footprint no sooner than the best's and
         whose smallest gap is within :data:`GAP_SLACK` of it (no smaller, once a mover is
         inside r_ES), when that best beats standing still.
-        Otherwise a crawl at :data:`RETREAT_SPEED` towards :func:`retreat_side` until the
+        Otherwise a crawl at :data:`RETREAT_SPEED` towards the open side with the most
+        room (:meth:`open_sides`: the movers about to enter count) until the
         nearest return (``closest``, r_c) is :data:`RETREAT_CLEARANCE` beyond r_ES, and
         under a threat only when it is :meth:`no_worse` than standing."""
         tracks = tuple(tracks)

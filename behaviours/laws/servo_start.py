@@ -70,7 +70,8 @@ def start_distance(
     ``distances`` (longest first): the longest whose centre is at least ``need`` from
     every one of ``returns`` (N, 2, same frame); that centre's distance to the nearest
     return (inf: none)). When none is that far, the one furthest from the returns (the
-    longest of equals).
+    longest of equals), if that is :data:`SERVO_START_MARGIN` further than the longest
+    (else the longest: a shorter run for a few centimetres is no gain).
 
     ``need`` is :func:`turning_radius` + r_ES + :data:`SERVO_START_MARGIN` for a start
     the robot must be able to turn in place at."""
@@ -83,5 +84,9 @@ def start_distance(
         returns[None, :, 0] - centres[:, None, 0], returns[None, :, 1] - centres[:, None, 1]
     ).min(axis=1)
     clear = np.flatnonzero(gaps >= need)
-    k = int(clear[0]) if len(clear) else int(np.argmax(gaps))
+    if len(clear):
+        k = int(clear[0])
+    else:
+        k = int(np.argmax(gaps))
+        k = k if gaps[k] >= gaps[0] + SERVO_START_MARGIN else 0
     return float(d[k]), float(gaps[k])
