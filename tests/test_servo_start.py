@@ -22,7 +22,6 @@ from behaviours.laws.servo_start import (
     SLIDE_STEP,
     candidate_distances,
     start_distance,
-    turning_radius,
 )
 from executive.compiler import CompileOptions, compile_mission
 from executive.core.frames import Pose2
@@ -46,7 +45,7 @@ def test_candidates_run_from_the_start_to_the_shortest_run():
 def test_a_start_slides_along_the_heading_line_until_the_robot_can_turn_there():
     """The checkpoint at the origin facing +x, so its start is on the -x axis; a wall
     across the line 2.5 m behind the checkpoint (as the truck's flank behind CP10)."""
-    need = turning_radius(1.4, 1.0) + 0.6 + SERVO_START_MARGIN
+    need = math.hypot(1.4, 1.0) / 2 + 0.6 + SERVO_START_MARGIN  # turning radius
     wall = np.column_stack((np.full(21, -2.5), np.linspace(-1.0, 1.0, 21)))
     distance, gap = start_distance(wall, (0.0, 0.0, 0.0), candidate_distances(1.0), need)
     assert gap >= need and 2.5 - distance == pytest.approx(gap)

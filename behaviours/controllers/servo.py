@@ -112,7 +112,6 @@ from behaviours.laws.servo_start import (
     SERVO_START_MARGIN,
     candidate_distances,
     start_distance,
-    turning_radius,
 )
 from executive.core.frames import (
     Pose2,
@@ -1076,7 +1075,7 @@ class SlideServoStart(Node):
         super().__init__(name)
         self.session = session
         self.checkpoint = checkpoint
-        self.need = turning_radius(platform.length, platform.width) + r_es + SERVO_START_MARGIN
+        self.need = platform.turning_radius + r_es + SERVO_START_MARGIN
 
     def update(self) -> Status:
         obstacles: Obstacles | None = self.read(OBSTACLES)

@@ -466,8 +466,8 @@ class Retreat:
         a merged track's disc overlapping a corridor its returns leave open does not
         close it (avoidance episode 142). Otherwise a mover about to enter a corridor
         counts too, with its clearance (:func:`corridor_room`, at ``speed``)."""
-        movers = () if threat else tracks
-        return open_sides(points, self.sides, self.length, self.width, self.r_es, movers, speed)
+        entering = () if threat else tracks
+        return open_sides(points, self.sides, self.length, self.width, self.r_es, entering, speed)
 
     def stopping(self, speed: float) -> float:
         """How far (m) a retreat at ``speed`` may still travel once told to stop: one

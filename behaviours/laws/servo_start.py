@@ -12,7 +12,7 @@ the e-stop latches, the robot is pushed off, and the navigation is trapped.
 :func:`start_distance` slides such a start forwards along the heading line, towards the
 checkpoint (a shorter servo run), to the first place from which the robot can turn in
 place without any return coming within r_ES of its footprint: the disc its corners sweep,
-of radius :func:`turning_radius`, clears every return by r_ES and
+of radius :attr:`~executive.core.model.Platform.turning_radius`, clears every return by r_ES and
 :data:`SERVO_START_MARGIN`.
 """
 
@@ -44,12 +44,6 @@ start still 1.36-1.44 m from the fuel truck's flank 0.4 m before the checkpoint,
 needed)."""
 
 
-def turning_radius(length: float, width: float) -> float:
-    """Radius (m) of the disc a ``length`` x ``width`` footprint centred on its axle sweeps
-    turning in place: half its diagonal."""
-    return 0.5 * math.hypot(length, width)
-
-
 def candidate_distances(longest: float, shortest: float = SHORTEST_RUN) -> FloatArray:
     """The servo-start distances before the checkpoint to try, longest first, every
     :data:`SLIDE_STEP` from ``longest`` down to ``shortest`` (``longest`` alone when it
@@ -73,7 +67,7 @@ def start_distance(
     longest of equals), if that is :data:`SERVO_START_MARGIN` further than the longest
     (else the longest: a shorter run for a few centimetres is no gain).
 
-    ``need`` is :func:`turning_radius` + r_ES + :data:`SERVO_START_MARGIN` for a start
+    ``need`` is the platform's turning radius + r_ES + :data:`SERVO_START_MARGIN` for a start
     the robot must be able to turn in place at."""
     d = np.asarray(distances, dtype=float)
     x, y, h = checkpoint
