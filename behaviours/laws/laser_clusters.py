@@ -68,8 +68,9 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import lru_cache
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -423,10 +424,32 @@ _ANGULAR_NEIGHBOURS = 3
 class TrackHints:
     """The small objects a tracker predicts at the scans' stamp, for
     :func:`split_by_tracks`: ``position`` (k, 2) in R and enclosing ``radius`` (k,) of
-    each."""
+    each; ``moving`` (k,): whether each one is a mover (none by default); ``ids`` (k,):
+    the tracker's name for each (-1 by default), handed back with the segments cut out
+    for a mover (:attr:`Clusters.carved_by`)."""
 
     position: FloatArray
     radius: FloatArray
+    moving: BoolArray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    ids: IntArray = field(default_factory=lambda: np.zeros(0, dtype=np.intp))
+
+    def __post_init__(self) -> None:
+        k = len(self.radius)
+        if len(self.moving) != k:
+            object.__setattr__(self, "moving", np.zeros(k, dtype=bool))
+        if len(self.ids) != k:
+            object.__setattr__(self, "ids", np.full(k, -1, dtype=np.intp))
+
+
+class Split(NamedTuple):
+    """What :func:`split_by_tracks` made of the segments, per point: ``labels``;
+    ``partial``, whether its segment was cut around a mover (both parts are then
+    partial views); ``carver``, the index of the hinted mover whose own part it is
+    (-1: none)."""
+
+    labels: IntArray
+    partial: BoolArray
+    carver: IntArray
 
 
 def _one_object(hints: TrackHints, rows: IntArray) -> bool:
@@ -446,8 +469,8 @@ def split_by_tracks(
     hints: TrackHints,
     margin: float,
     min_points: int,
-) -> IntArray:
-    """Step 3b: split a segment that is two tracked objects touching (track-aided
+) -> Split:
+    """Step 3b: split a segment that is tracked objects touching (track-aided
     segmentation).
 
     A walker or a trolley that comes against a post or a parked cart is one segment for
@@ -463,15 +486,31 @@ def split_by_tracks(
     a box's returns inside its enclosing circle stay its own beside a smaller post),
     provided at least two objects get ``min_points`` points each (the points of objects
     that get fewer go to their next best). Two hinted objects whose discs each hold the
-    other's centre are one object tracked twice, not two: they never cut a segment. A
-    segment that the hints do not cover whole (structure, a wall with a walker against
-    it, an object not yet tracked) is left as it is. Returns the labels, the new
-    segments numbered after the existing ones.
+    other's centre are one object tracked twice, not two: they never cut a segment.
+
+    A segment that the hints do not cover whole (structure, a wall with a walker against
+    it, an object not yet tracked, one too big to be hinted) is cut only for the hinted
+    *movers* (``hints.moving``): the points within a mover's grown disc (between two
+    movers, by power) become its own segment, if they are ``min_points`` or more and
+    leave as many; everything else stays together. A chaser passing between a parked
+    cart and a long box, all three one segment, was fed to its track as that 2.7 m
+    blob, which only re-anchors a track: the chaser was taken for still until it struck
+    the robot (avoidance campaign episode 558). A standing object's disc does not
+    compete here (its track, fed such merged views, is anchored on their middle, and its
+    disc there would hide the mover beside it), and a standing object's track loses
+    nothing by a merge: it is still either way. Both parts of such a cut are partial
+    views: the mover's is bounded by its disc and may hold a little of what it touches,
+    the rest lacks what the mover hides.
+
+    Returns the :class:`Split`: the labels (the new segments numbered after the existing
+    ones), and per point whether its segment was cut around a mover and by which.
     """
     k = len(hints.radius)
     members = (labels >= 0).nonzero()[0]
-    if k < 2 or len(members) == 0:
-        return labels
+    partial = np.zeros(len(labels), dtype=bool)
+    carver = np.full(len(labels), -1, dtype=np.intp)
+    if k == 0 or (k < 2 and not hints.moving.any()) or len(members) == 0:
+        return Split(labels, partial, carver)
     lab = labels[members]
     n = int(lab.max()) + 1
     count = np.bincount(lab, minlength=n)
@@ -485,9 +524,9 @@ def split_by_tracks(
     gap_x = cx[:, None] - hints.position[:, 0]
     gap_y = cy[:, None] - hints.position[:, 1]
     close = gap_x * gap_x + gap_y * gap_y <= reach * reach
-    candidates = (close.sum(axis=1) >= 2).nonzero()[0]
+    candidates = ((close.sum(axis=1) >= 2) | (close & hints.moving).any(axis=1)).nonzero()[0]
     if len(candidates) == 0:
-        return labels
+        return Split(labels, partial, carver)
     out = labels.copy()
     for s in candidates.tolist():
         idx = (labels == s).nonzero()[0]
@@ -500,7 +539,15 @@ def split_by_tracks(
         owner = power.argmin(axis=1)
         rows = np.arange(len(idx))
         if not np.isfinite(power[rows, owner]).all():
-            continue  # points no hinted object explains: not (only) these objects
+            # points no hinted object explains: not (only) these objects; the movers'
+            # own points are cut out of the rest
+            mover_power = np.where(hints.moving[near], power, np.inf)
+            mover = mover_power.argmin(axis=1)
+            mine = np.isfinite(mover_power[rows, mover])
+            n = _cut_movers(out, carver, partial, idx, near[mover], mine, min_points, n)
+            continue
+        if len(near) < 2:
+            continue  # one object, whole
         held = np.bincount(owner, minlength=len(near)) >= min_points
         if np.count_nonzero(held) < 2 or _one_object(hints, near[held]):
             continue
@@ -511,7 +558,33 @@ def split_by_tracks(
         for part in np.unique(owner)[1:].tolist():
             out[idx[owner == part]] = n
             n += 1
-    return out
+    return Split(out, partial, carver)
+
+
+def _cut_movers(
+    out: IntArray,
+    carver: IntArray,
+    partial: BoolArray,
+    idx: IntArray,
+    owner: IntArray,
+    mine: BoolArray,
+    min_points: int,
+    n: int,
+) -> int:
+    """Give each hinted mover ``owner`` the points of ``idx`` (one segment) that are
+    ``mine`` (in a mover's grown disc) a segment of its own, numbered from ``n``, where
+    it holds ``min_points`` or more and the rest keeps as many (``out``, ``carver`` and
+    ``partial`` written in place); returns the next free number."""
+    rest = len(idx) - int(np.count_nonzero(mine))
+    for part in np.unique(owner[mine]).tolist():
+        taken = mine & (owner == part)
+        if np.count_nonzero(taken) < min_points or rest < min_points:
+            continue
+        out[idx[taken]] = n
+        carver[idx[taken]] = part
+        partial[idx] = True
+        n += 1
+    return n
 
 
 def _run_ends(
@@ -958,6 +1031,9 @@ class Clusters:
     along it with the range and the incidence).
     ``boxed``: for a blob, whether it is a box and ``position`` its rectangle's centre.
     ``returns`` and ``isolated`` count the returns and the removed isolated points.
+    ``carved_by``: the id of the tracked mover whose own part of a segment the cluster
+    is (:func:`split_by_tracks`; such a cluster, and the rest of its segment, are
+    ``occluded``), -1 for the others.
     """
 
     stamp: float
@@ -976,6 +1052,11 @@ class Clusters:
     boxed: BoolArray
     returns: int = 0
     isolated: int = 0
+    carved_by: IntArray = field(default_factory=lambda: np.zeros(0, dtype=np.intp))
+
+    def __post_init__(self) -> None:
+        if len(self.carved_by) != len(self.kind):
+            object.__setattr__(self, "carved_by", np.full(len(self.kind), -1, dtype=np.intp))
 
     @staticmethod
     def empty(stamp: float, returns: int = 0, isolated: int = 0) -> Clusters:
@@ -1018,6 +1099,31 @@ class Clusters:
 
     def __iter__(self) -> Iterator[Cluster]:
         return (self[i] for i in range(len(self)))
+
+
+def _as_blobs(fits: ClusterFits, rows: BoolArray) -> ClusterFits:
+    """``fits`` with clusters ``rows`` taken as blobs: a mover's part cut out by its disc
+    has the cut's shape, not the object's (the disc's edge across a wall is an arc, whose
+    circle fit put a trolley's "centre" 2 m away); its centroid is where it is."""
+    kind = np.where(rows, BLOB, fits.kind).astype(np.int8)
+    return ClusterFits(
+        kind=kind,
+        centroid=fits.centroid,
+        size=fits.size,
+        line=np.where(rows[:, None], np.nan, fits.line),
+        circle=np.where(rows[:, None], np.nan, fits.circle),
+        rms=np.where(rows, np.nan, fits.rms),
+    )
+
+
+def _carved_by(split: Split | None, hints: TrackHints | None, first: IntArray) -> IntArray:
+    """Per cluster (its first point at ``first``), the id of the hinted mover it was cut
+    out for (:attr:`TrackHints.ids`), -1 for the others."""
+    none = np.full(len(first), -1, dtype=np.intp)
+    if split is None or hints is None or not (split.carver >= 0).any():
+        return none
+    carver = split.carver[first]
+    return np.where(carver >= 0, hints.ids[np.maximum(carver, 0)], none)
 
 
 class ScanClusterer:
@@ -1070,8 +1176,10 @@ class ScanClusterer:
         pts = merge_scans(scans, robot_points)
         kept = neighbour_mask(pts, p)
         labels = segment(pts, kept, p)
+        split = None
         if hints is not None:
-            labels = split_by_tracks(pts.x, pts.y, labels, hints, p.split_margin, p.min_points)
+            split = split_by_tracks(pts.x, pts.y, labels, hints, p.split_margin, p.min_points)
+            labels = split.labels
         members = (labels >= 0).nonzero()[0]
         returns, isolated = len(pts), len(pts) - int(np.count_nonzero(kept))
         if len(members) == 0:
@@ -1082,6 +1190,9 @@ class ScanClusterer:
         xy = np.column_stack((pts.x[order], pts.y[order]))
         first = start[:-1]
         fits = fit_clusters(xy, start, pts.sensors[pts.scanner[order[first]]], p, self.rng)
+        carved_by = _carved_by(split, hints, order[first])
+        if (carved_by >= 0).any():
+            fits = _as_blobs(fits, carved_by >= 0)
         is_circle = (fits.kind == CIRCLE)[:, None]
         middle = 0.5 * (fits.line[:, :2] + fits.line[:, 2:])
         position = np.where(
@@ -1090,7 +1201,8 @@ class ScanClusterer:
             np.where(fits.kind[:, None] == LINE, middle, fits.centroid),
         )
         size = np.where(is_circle[:, 0], fits.circle[:, 2], fits.size)
-        blobs = (fits.kind == BLOB).nonzero()[0]
+        cut = np.zeros(len(first), dtype=bool) if split is None else split.partial[order[first]]
+        blobs = ((fits.kind == BLOB) & (carved_by < 0)).nonzero()[0]
         boxed = np.zeros(len(fits.kind), dtype=bool)
         if len(blobs):
             band = p.inlier_sigmas * p.range_sigma
@@ -1111,9 +1223,12 @@ class ScanClusterer:
             rms=fits.rms,
             clearance=np.minimum.reduceat(footprint_distances(xy, self.length, self.width), first),
             occluded=occluded(pts, kept, order, first, p)
-            | self._at_range_limit(scans, pts, order, first),
-            ends_visible=line_ends_visible(scans, pts, order, start, fits.line, p),
+            | self._at_range_limit(scans, pts, order, first)
+            | cut,
+            # where a segment was cut, its ends are the cut's, not the object's
+            ends_visible=line_ends_visible(scans, pts, order, start, fits.line, p) & ~cut[:, None],
             boxed=boxed,
             returns=returns,
             isolated=isolated,
+            carved_by=carved_by,
         )

@@ -87,7 +87,16 @@ Track-aided segmentation: :meth:`ObstacleTracker.hints` gives the clusterer the
 confirmed tracks of small objects predicted to the next scan, so that a segment of two
 of them touching (a trolley sliding past a post) is cut back into the two
 (:func:`behaviours.laws.laser_clusters.split_by_tracks`) instead of feeding both tracks
-a merged view that is neither.
+a merged view that is neither. A track stays hinted while it is seen small, whole or in
+part (a chaser seen only partly, past the edge of what hides it, was hinted for the
+first second only). A mover's hint also cuts its own points out of a segment of
+something the hints do not cover (a parked box too big to be hinted): that part comes
+back marked with the track's id (:attr:`~behaviours.laws.laser_clusters.Clusters.
+carved_by`) and is paired with that track outside the assignment. It is a partial view,
+the points within the track's own disc: its size is not the object's, and its
+centroid measures the position like any view of that size (never an anchor: a
+merge is what it was cut out of), so the track keeps measuring its motion while it
+passes along the structure (avoidance campaign episode 558).
 
 Track management: an unassigned cluster starts a tentative track (zero velocity, velocity
 standard deviation ``initial_speed_sigma``); ``confirm_hits`` assignments confirm it; a
@@ -120,7 +129,7 @@ from numpy.typing import NDArray
 from scipy.optimize import linear_sum_assignment
 
 from behaviours.laws.laser_clusters import BLOB, CIRCLE, KIND_NAMES, LINE, Clusters, TrackHints
-from behaviours.laws.obstacles import footprint_distances, footprint_distances_xy
+from behaviours.laws.obstacles import MOVER_SPEED, footprint_distances, footprint_distances_xy
 from executive.core.frames import FloatArray, Pose2
 from executive.core.records import Danger, TrackedObstacle
 
@@ -356,17 +365,26 @@ class ObstacleTracker:
         return len(self.ids)
 
     def hints(self, stamp: float, pose: Pose2) -> TrackHints:
-        """The confirmed tracks of small objects (seen whole no bigger than
-        ``max_blob_size`` within ``coast_time``; that view's size) predicted to ``stamp``,
-        in R at ``pose`` (W <- R): where the next scan's clusterer may cut a segment of
-        two of them touching (:func:`behaviours.laws.laser_clusters.split_by_tracks`)."""
+        """The confirmed tracks of small objects (seen no bigger than ``max_blob_size``
+        within ``coast_time``; the size of the last whole view) predicted to ``stamp``, in
+        R at ``pose`` (W <- R), and which of them move (the filter's speed at least
+        :data:`~behaviours.laws.obstacles.MOVER_SPEED`, on a track at least
+        ``coast_time`` old): where the next scan's clusterer
+        may cut a segment of two of them touching, or a mover out of a segment it touches
+        (:func:`behaviours.laws.laser_clusters.split_by_tracks`)."""
         p = self.params
         recent = (self.small_size > 0.0) & (stamp - self.small_seen <= p.coast_time)
         small = ((self.hits >= p.confirm_hits) & recent).nonzero()[0]
         dt = 0.0 if self.stamp is None else max(stamp - self.stamp, 0.0)
-        ahead = self.state[small, :2] + dt * self.state[small, 2:]
+        velocity = self.state[small, 2:]
+        ahead = self.state[small, :2] + dt * velocity
         position = pose.inverse().apply(ahead) if len(small) else np.zeros((0, 2))
-        return TrackHints(position, self.small_size[small])
+        # a mover: as fast as MOVER_SPEED, followed for coast_time at least (a walker's
+        # track 0.4 s old, its speed still a first guess, cut the end of a wall for itself
+        # and sped off at 1.5 m/s)
+        speed = np.hypot(velocity[:, 0], velocity[:, 1])
+        moving = (speed >= MOVER_SPEED) & (stamp - self.born[small] >= p.coast_time)
+        return TrackHints(position, self.small_size[small], moving, self.ids[small])
 
     def update(
         self, clusters: Clusters, pose: Pose2, velocity: tuple[float, float] = (0.0, 0.0)
@@ -414,7 +432,14 @@ class ObstacleTracker:
         # however inflated a partial view's variance, two views of one object lie within
         # their sizes of each other (the prediction carries the motion)
         reach = self.size[:, None] + clusters.size[None, :] + self._motion_reach()[:, None]
+        # a mover's own part of a segment, cut out for it by its hint (split_by_tracks), is
+        # its view: paired with it outside the assignment
+        rows_c, cols_c = self._carved(clusters)
+        reach[rows_c, :] = -1.0
+        reach[:, cols_c] = -1.0
         rows, cols = self._associate(z, r_xx, r_xy, r_yy, reach)
+        carved = np.concatenate((np.zeros(len(rows), dtype=bool), np.ones(len(rows_c), bool)))
+        rows, cols = np.concatenate((rows, rows_c)), np.concatenate((cols, cols_c))
         # no measurement of motion, only a new anchor: a view of a big object of another
         # kind than the last one (the middle of a face, then the centroid of an L or the
         # centre of a fitted arc: other points of it), a box seen as a line after a blob
@@ -444,12 +469,15 @@ class ObstacleTracker:
         blob_again = (kind == BLOB) & (self.last_kind[rows] == BLOB) & ~clusters.occluded[cols]
         anchor = (not_circle & other_points) | (line_track[rows] & ~is_line[cols] & ~blob_again)
         anchor |= (kind == BLOB) & big
+        # a mover's carved part: its points within its disc, a partial view whose shape
+        # and size are the cut's, its middle a measure of where it is
+        anchor &= ~carved
         # lines on any track but a circle's are measured across the line, and along it only
         # when seen whole
-        by_line = not_circle & is_line[cols] & (line_track[rows] | ~changed) & ~anchor
+        by_line = not_circle & is_line[cols] & (line_track[rows] | ~changed) & ~anchor & ~carved
         # the view after an anchor is another view of the object: its difference from
         # the anchor is no motion either (a track alternating between a wall and a blob)
-        again = self.anchored[rows] & ~anchor
+        again = self.anchored[rows] & ~anchor & ~carved
         anchor |= again & ~by_line
         by_line_again = again & by_line
         self.anchored[rows] = anchor & ~again
@@ -462,9 +490,11 @@ class ObstacleTracker:
             circle_track[rows, 0]
             & (~is_circle[cols] | off_radius[rows, cols])
             & clusters.occluded[cols]
+            & ~carved
         )
         point = ~by_line & ~anchor & ~shape_off
-        self._correct(rows[point], z[cols[point]], r_pair[rows[point], cols[point]])
+        r_point = np.where(carved, r[cols], r_pair[rows, cols])
+        self._correct(rows[point], z[cols[point]], r_point[point])
         if anchor.any():
             rows_a, z_a, r_a = rows[anchor], z[cols[anchor]], r[cols[anchor]]
             for k in range(2):  # along x, then along y
@@ -528,6 +558,20 @@ class ObstacleTracker:
         lam = 0.5 * (a + c) + np.sqrt(0.25 * (a - c) ** 2 + b * b)
         return np.minimum(np.sqrt(self.params.gate * lam), self.params.max_offset)
 
+    def _carved(self, clusters: Clusters) -> tuple[IntArray, IntArray]:
+        """(track rows, cluster columns) of the clusters cut out for a tracked mover
+        (:attr:`Clusters.carved_by`), one per track (``ids`` ascend: a new track is
+        appended with the next id, and pruning keeps the order)."""
+        ids = clusters.carved_by
+        cols = (ids >= 0).nonzero()[0]
+        if len(cols) == 0 or len(self) == 0:
+            return np.zeros(0, dtype=np.intp), np.zeros(0, dtype=np.intp)
+        rows = np.minimum(np.searchsorted(self.ids, ids[cols]), len(self) - 1)
+        known = self.ids[rows] == ids[cols]
+        rows, cols = rows[known], cols[known]
+        rows, first = np.unique(rows, return_index=True)
+        return rows, cols[first]
+
     def _associate(
         self,
         z: FloatArray,
@@ -538,7 +582,8 @@ class ObstacleTracker:
     ) -> tuple[IntArray, IntArray]:
         """Global nearest neighbour between the tracks and the measurements ``z`` (C, 2)
         of covariance ``[[r_xx, r_xy], [r_xy, r_yy]]`` (each (T, C)), no pair farther
-        apart than ``reach`` (T, C): (track rows, cluster columns) of the gated pairs."""
+        apart than ``reach`` (T, C; negative: never paired): (track rows, cluster
+        columns) of the gated pairs."""
         if len(self) == 0 or len(z) == 0:
             return np.zeros(0, dtype=np.intp), np.zeros(0, dtype=np.intp)
         p = self.covariance
@@ -549,7 +594,7 @@ class ObstacleTracker:
         dy = z[:, 1] - self.state[:, 1, None]
         det = a * c - b * b
         d2 = (c * dx * dx - 2.0 * b * dx * dy + a * dy * dy) / det
-        inside = (d2 <= self.params.gate) & (dx * dx + dy * dy <= reach * reach)
+        inside = (d2 <= self.params.gate) & (dx * dx + dy * dy <= reach * reach) & (reach >= 0)
         cost = np.where(inside, d2 + np.log(det), _FORBIDDEN)
         rows, cols = linear_sum_assignment(cost)
         keep = inside[rows, cols]
@@ -686,6 +731,14 @@ class ObstacleTracker:
         self.hits[rows] += 1
         self.votes[rows, clusters.kind[cols]] += 1
         self.clearance[rows] = clusters.clearance[cols]
+        # a part seen alone no bigger than max_blob_size (occluded, or seen as another
+        # shape) says the object is still there and still small: the size stays the last
+        # whole view's, the time is refreshed (a chaser seen only partly, past the edge of
+        # what hides it, lost its hint a second after it was first seen and was merged into
+        # that obstacle's track: avoidance campaign episode 558)
+        part = ~whole & (clusters.size[cols] <= self.params.max_blob_size)
+        part &= self.small_size[rows] > 0.0
+        self.small_seen[rows[part]] = t
         rows, cols = rows[whole], cols[whole]
         self.size[rows] = clusters.size[cols]
         small = clusters.size[cols] <= self.params.max_blob_size
