@@ -360,6 +360,8 @@ class ObstacleTracker:
         #: (0: none yet), and its stamp: the object's own size while it is seen merged
         self.small_size = np.zeros(0)
         self.small_seen = np.zeros(0)
+        #: a whole view bigger than ``max_blob_size`` was ever assigned to the track
+        self.seen_big = np.zeros(0, dtype=bool)
 
     def __len__(self) -> int:
         return len(self.ids)
@@ -369,7 +371,8 @@ class ObstacleTracker:
         within ``coast_time``; the size of the last whole view) predicted to ``stamp``, in
         R at ``pose`` (W <- R), and which of them move (the filter's speed at least
         :data:`~behaviours.laws.obstacles.MOVER_SPEED`, on a track at least
-        ``coast_time`` old): where the next scan's clusterer
+        ``coast_time`` old never seen whole bigger than ``max_blob_size``): where the next
+        scan's clusterer
         may cut a segment of two of them touching, or a mover out of a segment it touches
         (:func:`behaviours.laws.laser_clusters.split_by_tracks`)."""
         p = self.params
@@ -381,9 +384,12 @@ class ObstacleTracker:
         position = pose.inverse().apply(ahead) if len(small) else np.zeros((0, 2))
         # a mover: as fast as MOVER_SPEED, followed for coast_time at least (a walker's
         # track 0.4 s old, its speed still a first guess, cut the end of a wall for itself
-        # and sped off at 1.5 m/s)
+        # and sped off at 1.5 m/s), never seen whole bigger than max_blob_size (a parked
+        # box's track, its view shrunk to a fragment that slid, cut the box's face for
+        # itself and sped along it at 0.9 m/s: avoidance campaign episode 323)
         speed = np.hypot(velocity[:, 0], velocity[:, 1])
         moving = (speed >= MOVER_SPEED) & (stamp - self.born[small] >= p.coast_time)
+        moving &= ~self.seen_big[small]
         return TrackHints(position, self.small_size[small], moving, self.ids[small])
 
     def update(
@@ -712,6 +718,7 @@ class ObstacleTracker:
         self.last_boxed = np.concatenate((self.last_boxed, boxed))
         self.small_size = np.concatenate((self.small_size, np.zeros(n)))
         self.small_seen = np.concatenate((self.small_seen, np.full(n, -np.inf)))
+        self.seen_big = np.concatenate((self.seen_big, np.zeros(n, dtype=bool)))
 
     def _describe(
         self,
@@ -744,6 +751,7 @@ class ObstacleTracker:
         small = clusters.size[cols] <= self.params.max_blob_size
         self.small_size[rows[small]] = clusters.size[cols[small]]
         self.small_seen[rows[small]] = t
+        self.seen_big[rows[~small]] = True
         circle = clusters.kind[cols] == CIRCLE
         self.radius[rows[circle]] = clusters.circle[cols[circle], 2]
         line = clusters.kind[cols] == LINE
@@ -774,6 +782,7 @@ class ObstacleTracker:
             "last_boxed",
             "small_size",
             "small_seen",
+            "seen_big",
         ):
             setattr(self, name, getattr(self, name)[keep])
 
