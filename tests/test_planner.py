@@ -183,29 +183,43 @@ def test_template_dwell_falls_back_to_the_median():
     assert targets.template_dwell(template, ["not-an-a320-item"]) == dwells[len(dwells) // 2]
 
 
-def _assert_draft_dry_run(kind: str, folder: Path) -> None:
+def _assert_draft_dry_run(kind: str, folder: Path, half: bool = False) -> None:
     """The acceptance of issue 18: the draft's dry-run on the clear apron completes with
     every item inspected, no collision or breach, every checkpoint within its tolerance,
-    and the checkpoints with a servo target finished by visual servoing (2 cm, 0.5 deg)."""
+    and the checkpoints with a servo target finished by visual servoing (2 cm, 0.5 deg).
+    With ``half``, the run is stopped once the first half of the checkpoints is done, and
+    those are judged so."""
     from executive.dryrun import dry_run
+    from executive.runtime import StopRequest
     from sim2d.scenario import load_scenario
 
     _, draft, _ = _draft(kind, folder)
     scenario = load_scenario(MISSIONS / kind / "scenarios" / "clear-apron.xml")
-    run = dry_run(dataclasses.replace(scenario, mission=draft))
-    assert run.result.outcome == "completed", (run.result.reason, run.first_cause)
+    stop = StopRequest()
+    first = len(draft.checkpoints) // 2 if half else None
+
+    def enough(t, frame, sent, rt) -> None:
+        if first is not None and len(rt.completed) >= first:
+            stop.set(f"{first} checkpoints done")
+
+    run = dry_run(dataclasses.replace(scenario, mission=draft), stop=stop, observers=[enough])
+    if first is None:
+        assert run.result.outcome == "completed", (run.result.reason, run.first_cause)
+    else:
+        assert stop, (run.result.outcome, run.result.reason, run.first_cause)
     assert not run.robot.truth.collisions
     assert not run.breaches
     tolerance = draft.navigation
-    for cp, outcome in zip(draft.checkpoints, run.checkpoints, strict=True):
+    checkpoints = draft.checkpoints[:first]
+    for cp, outcome in zip(checkpoints, run.checkpoints, strict=False):
         assert outcome.reached, cp.id
         assert outcome.position_error <= tolerance.position_tolerance, (cp.id, outcome)
         assert outcome.heading_error_deg <= math.degrees(tolerance.heading_tolerance), cp.id
         assert outcome.items == len(cp.items), cp.id
     detected = {r.item for r in run.result.progress.results if r.detected}
-    assert detected == set(draft.aircraft.items)
-    servoed = assert_finished_by_servoing(run)
-    assert servoed == [cp.id for cp in draft.checkpoints if cp.target is not None]
+    assert detected == {item for cp in checkpoints for item in cp.items}
+    servoed = assert_finished_by_servoing(run, first)
+    assert servoed == [cp.id for cp in checkpoints if cp.target is not None]
 
 
 @pytest.mark.slow
@@ -214,8 +228,10 @@ def test_a320_draft_dry_run_inspects_every_item(tmp_path):
 
 
 @pytest.mark.slow
-def test_b737_draft_dry_run_inspects_every_item(tmp_path):
-    _assert_draft_dry_run("b737-800", tmp_path)
+def test_b737_draft_dry_run_inspects_every_item_of_its_first_half(tmp_path):
+    """The B737's draft, run until half its checkpoints are done (the A320's is run whole:
+    the drafter is one for all types, and a whole airliner run is minutes of CI)."""
+    _assert_draft_dry_run("b737-800", tmp_path, half=True)
 
 
 # -- the pieces ------------------------------------------------------------------------------
