@@ -8,6 +8,7 @@ import numpy as np
 
 from executive.core.frames import Pose2, wrap_angle
 from executive.core.records import VelocityCommand
+from executive.runtime import StopRequest, TickHook
 from sim2d.robot import SimRobot
 from sim2d.scenario import Scenario, load_scenario
 from tests.conftest import MISSIONS
@@ -119,3 +120,16 @@ def assert_finished_by_servoing(run, first: int | None = None) -> list[str]:
         assert outcome.heading_error_deg <= SERVO_HEADING_DEG, (cp.id, outcome)
         servoed.append(cp.id)
     return servoed
+
+
+def stop_once_done(count: int) -> tuple[StopRequest, TickHook]:
+    """A stop request and the tick observer that sets it once ``count`` checkpoints are
+    done (``Runtime.completed``): for a test whose subject lies in a mission's first
+    checkpoints. After the run, the request is truthy only if that many were done."""
+    stop = StopRequest()
+
+    def observe(t, frame, sent, rt) -> None:
+        if len(rt.completed) >= count:
+            stop.set(f"{count} checkpoints done")
+
+    return stop, observe

@@ -8,11 +8,9 @@ import pytest
 from behaviours.controllers.avoidance import AvoidanceParams
 from executive.dryrun import dry_run
 from executive.report import metrics, write_report
-from executive.runtime import StopRequest
-from sim2d.robot import SimRobot
 from sim2d.scenario import load_scenario
 from tests.conftest import MISSIONS
-from tests.sim2d_helpers import make_scenario
+from tests.sim2d_helpers import make_scenario, stop_once_done
 
 pytestmark = pytest.mark.slow
 
@@ -124,23 +122,18 @@ def test_a320_preflight_with_the_adversarial_trolley():
     checkpoint so far reached within tolerance, the trolley dodged, nothing hit, no zone
     entered. Metric go-to-goal at the checkpoints, as on the busy apron."""
     scenario = load_scenario(MISSIONS / "a320" / "scenarios" / "adversarial-trolley.xml")
-    robot = SimRobot(scenario)
-    stop = StopRequest()
-
-    def past_the_wing(t, frame, sent, rt) -> None:
-        if "CP11" in rt.completed:
-            stop.set("CP11 is done: the trolley's legs are behind")
-
-    run = dry_run(scenario, robot=robot, stop=stop, servo=False, observers=[past_the_wing])
+    cp11 = [cp.id for cp in scenario.mission.checkpoints].index("CP11") + 1
+    stop, past_the_wing = stop_once_done(cp11)
+    run = dry_run(scenario, stop=stop, servo=False, observers=[past_the_wing])
     assert stop, (run.result.outcome, run.result.reason)
     report = metrics(run)
     assert not report["collisions"], report["collisions"]
     assert not report["geofence_breaches"], report["geofence_breaches"]
     done = [c for c in run.checkpoints if c.reached]
-    assert [c.id for c in done][-1] == "CP11" and len(done) >= 11
+    assert [c.id for c in done][-1] == "CP11" and len(done) == cp11
     assert max(c.position_error for c in done) < 0.15
     assert_avoided(report)
-    (trolley,) = robot.world.chasers
+    (trolley,) = run.robot.world.chasers
     assert trolley.gave_up  # it chased for its whole pursuit, and the robot got past
 
 

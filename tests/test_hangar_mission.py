@@ -23,10 +23,10 @@ from executive.cli import _default_scenario, main
 from executive.core.loader import load_mission
 from executive.core.taught_route import load_route
 from executive.dryrun import dry_run
-from executive.runtime import StopRequest
 from sim2d.robot import SimRobot
 from sim2d.scenario import load_scenario
 from tests.conftest import MISSIONS
+from tests.sim2d_helpers import stop_once_done
 
 A320 = MISSIONS / "a320"
 MISSION = A320 / "hangar.xml"
@@ -93,7 +93,7 @@ def test_the_hangar_mission_completes_its_approach_on_the_taught_route_and_ceili
     says: the rest is the A320 walk-around, which tests/test_executive_e2e.py runs whole."""
     scenario = load_scenario(SCENARIO)
     robot = SimRobot(scenario)
-    stop = StopRequest()
+    stop, at_cp01 = stop_once_done(1)
     trajectory: list[tuple[float, float]] = []
     estimate_error: list[float] = []
     nodes: list[Localise] = []
@@ -105,10 +105,8 @@ def test_the_hangar_mission_completes_its_approach_on_the_taught_route_and_ceili
         if not rt.compiled.route_sessions[0].follower.done:
             trajectory.append((truth.x, truth.y))
             estimate_error.append(nodes[0].filter.pose.distance_to(truth))
-        if rt.completed:
-            stop.set("CP01 is done")
 
-    run = dry_run(scenario, robot=robot, stop=stop, observers=[observe], max_time=300.0)
+    run = dry_run(scenario, robot=robot, stop=stop, observers=[observe, at_cp01], max_time=300.0)
     assert stop, f"CP01 was not completed: {run.result.outcome}, {run.result.reason}"
     route = load_route(ROUTE / "route.xml")
     events = run.result.events

@@ -52,7 +52,7 @@ from executive.planning.space import free_space
 from executive.planning.tour import nearest_neighbour, tour_length, two_opt
 from executive.planning.write import write_mission
 from tests.conftest import MISSIONS
-from tests.sim2d_helpers import assert_finished_by_servoing
+from tests.sim2d_helpers import assert_finished_by_servoing, stop_once_done
 
 TEMPLATES = {"lab": "visual-servoing.xml", "a320": "preflight.xml", "b737-800": "preflight.xml"}
 REASONS = (
@@ -190,20 +190,15 @@ def _assert_draft_dry_run(kind: str, folder: Path, half: bool = False) -> None:
     With ``half``, the run is stopped once the first half of the checkpoints is done, and
     those are judged so."""
     from executive.dryrun import dry_run
-    from executive.runtime import StopRequest
     from sim2d.scenario import load_scenario
 
     _, draft, _ = _draft(kind, folder)
     scenario = load_scenario(MISSIONS / kind / "scenarios" / "clear-apron.xml")
-    stop = StopRequest()
     first = len(draft.checkpoints) // 2 if half else None
-
-    def enough(t, frame, sent, rt) -> None:
-        if first is not None and len(rt.completed) >= first:
-            stop.set(f"{first} checkpoints done")
-
-    run = dry_run(dataclasses.replace(scenario, mission=draft), stop=stop, observers=[enough])
-    if first is None:
+    stop, enough = stop_once_done(first) if first is not None else (None, None)
+    observers = [enough] if enough is not None else []
+    run = dry_run(dataclasses.replace(scenario, mission=draft), stop=stop, observers=observers)
+    if stop is None:
         assert run.result.outcome == "completed", (run.result.reason, run.first_cause)
     else:
         assert stop, (run.result.outcome, run.result.reason, run.first_cause)
@@ -217,8 +212,8 @@ def _assert_draft_dry_run(kind: str, folder: Path, half: bool = False) -> None:
         assert outcome.heading_error_deg <= math.degrees(tolerance.heading_tolerance), cp.id
         assert outcome.items == len(cp.items), cp.id
     detected = {r.item for r in run.result.progress.results if r.detected}
-    whole = set(draft.aircraft.items) if first is None else set()  # the draft covers them all
-    assert detected == whole | {item for cp in checkpoints for item in cp.items}
+    inspected = {item for cp in checkpoints for item in cp.items}
+    assert detected == (set(draft.aircraft.items) if first is None else inspected)
     servoed = assert_finished_by_servoing(run, first)
     assert servoed == [cp.id for cp in checkpoints if cp.target is not None]
 
