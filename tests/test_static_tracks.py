@@ -26,6 +26,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from behaviours.laws.laser_clusters import ScanClusterer
+from behaviours.laws.obstacles import vouched_velocity
 from behaviours.laws.tracking import DangerParams, ObstacleTracker
 from executive.core.frames import Pose2, wrap_angle
 from executive.core.records import TrackedObstacle, VelocityCommand
@@ -193,7 +194,8 @@ def test_a_moving_line_or_circle_keeps_its_speed(
 
 def test_a_line_seen_whole_and_moving_along_itself_is_tracked_along() -> None:
     """A 1.2 m trolley side passing across the robot's view along its own direction, its
-    two ends seen: the along-line motion is observable and tracked."""
+    two ends seen: the along-line motion is observable and tracked, and the track says it
+    was measured, so avoidance counts it (:func:`vouched_velocity`)."""
     vel = np.array([0.0, 0.8])
 
     def scene_at(t: float) -> Scene:
@@ -205,6 +207,9 @@ def test_a_line_seen_whole_and_moving_along_itself_is_tracked_along() -> None:
     assert late and all(o.kind == "line" for o in late)
     errors = [float(np.hypot(*(np.array(o.velocity) - vel))) for o in late]
     assert float(np.median(errors)) < 0.1
+    assert all(o.motion_measured for o in late)
+    vouched = [float(np.hypot(*(np.array(vouched_velocity(o)) - vel))) for o in late]
+    assert float(np.median(vouched)) < 0.1
 
 
 # -- every shipped scenario ----------------------------------------------------------------------

@@ -28,6 +28,7 @@ import py_trees
 from behaviours.base import Controller, Guard
 from behaviours.goals import Goal
 from behaviours.keys import COMMAND, OBSTACLES, POSE
+from behaviours.laws.obstacles import vouched_velocity
 from behaviours.laws.rate_limit import RateLimiter, RateLimits
 from behaviours.laws.retreat import heading_clearances, slowdown_scale
 from behaviours.laws.spiral import (
@@ -238,13 +239,14 @@ class AvoidancePolicy:
     def _smoothed_speeds(
         self, candidates: dict[int, tuple[TrackedObstacle, SpiralObstacle]], dt: float
     ) -> None:
-        """Low-pass the observable speed of each track (a noisy estimate must not flip the
-        mode every tick)."""
+        """Low-pass the speed of each track as far as the lasers vouch for it
+        (:func:`~behaviours.laws.obstacles.vouched_velocity`; a noisy estimate must not
+        flip the mode every tick)."""
         p = self.params
         gain = min(1.0, max(dt, 0.0) / p.speed_time_constant)
         speeds = {}
-        for ident, (track, obstacle) in candidates.items():
-            measured = obstacle.observable_speed
+        for ident, (track, _) in candidates.items():
+            measured = math.hypot(*vouched_velocity(track))
             if track.size > p.large_size:  # partial views slide a big centroid
                 measured = max(0.0, measured - p.large_speed_allowance)
             previous = self._speeds.get(ident)

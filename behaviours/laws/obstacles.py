@@ -42,8 +42,8 @@ def footprint_distances_xy(x: FloatArray, y: FloatArray, length: float, width: f
 
 
 MOVER_SPEED = 0.1
-"""A track faster than this (m/s) counts as moving (across its length for a line: see
-:func:`observable_velocity`)..."""
+"""A track faster than this (m/s) counts as moving (as far as the lasers vouch for its
+speed: :func:`vouched_velocity`)..."""
 MOVER_MAX_SIZE = 1.5
 """...unless it is bigger than this (enclosing radius, m): a vehicle or a structure,
 whose centroid slides as the robot's view of it changes."""
@@ -78,9 +78,14 @@ def observable_velocity(
 
 
 def vouched_velocity(track: TrackedObstacle) -> tuple[float, float]:
-    """A track's velocity as far as the lasers vouch for it (:func:`observable_velocity`:
-    across its length for a line)."""
-    shape = track.shape if track.kind == "line" else ()
+    """A track's velocity as far as the lasers vouch for it: the whole velocity, except
+    for a line whose motion along itself was not measured lately (``motion_measured``
+    false: only parts of it seen), whose velocity counts across its length only
+    (:func:`observable_velocity`). A trolley rolling along its own side face, both ends in
+    view, is a line whose along-line motion the tracker measures: it counts at its full
+    speed (one doing 1.15 m/s counted at 0.17 m/s, its across-line part, and was left to
+    the spiral: A320 busy-apron campaign episode 55)."""
+    shape = track.shape if track.kind == "line" and not track.motion_measured else ()
     return observable_velocity(track.velocity, shape)
 
 

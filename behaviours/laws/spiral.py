@@ -61,7 +61,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from behaviours.laws.obstacles import observable_velocity
 from executive.core.frames import FloatArray, Pose2, wrap_angle
 
 __all__ = [
@@ -157,12 +156,6 @@ class SpiralObstacle:
     @property
     def speed(self) -> float:
         return math.hypot(*self.velocity)
-
-    @property
-    def observable_speed(self) -> float:
-        """The speed the lasers can vouch for (:func:`obstacles.observable_velocity`:
-        across a line obstacle only, the full speed otherwise)."""
-        return math.hypot(*observable_velocity(self.velocity, self.shape))
 
     @property
     def centre(self) -> FloatArray:

@@ -106,6 +106,10 @@ tentative track not seen for ``tentative_timeout`` or a confirmed one not seen f
 of the scan: position in R, ground velocity in R's axes, covariance rotated into R. A
 track's shape follows its state: a circle is centred on the tracked position, and a line
 (its ends from the last whole view) is moved by :func:`line_through` to pass through it.
+A track says whether its motion was measured on both axes within ``unseen_motion_time``
+(``motion_measured``: a point update, or a line's along-line update): a line followed
+only in part was not, and its velocity along itself is then not vouched for
+(:func:`behaviours.laws.obstacles.vouched_velocity`).
 A segment left where it was last seen whole describes a ghost: a track last seen whole
 as a line, then followed as a blob to a walker standing 3.5 m away, kept its old segment
 behind the robot; avoidance found the ghost off the path and drove into the walker, and
@@ -354,6 +358,9 @@ class ObstacleTracker:
         self.whole_line = np.zeros(0, dtype=bool)
         #: the last update only re-anchored the track (a view that shows no motion)
         self.anchored = np.zeros(0, dtype=bool)
+        #: stamp of the last update that measured the motion on both axes (a point
+        #: update, or a line's along-line update): -inf, never
+        self.motion_seen = np.zeros(0)
         self.last_kind = np.zeros(0, dtype=np.int8)  # the kind of the last assigned cluster
         self.last_boxed = np.zeros(0, dtype=bool)  # ... and whether it was a fitted box
         #: the enclosing radius of the last whole view no bigger than ``max_blob_size``
@@ -501,6 +508,7 @@ class ObstacleTracker:
         point = ~by_line & ~anchor & ~shape_off
         r_point = np.where(carved, r[cols], r_pair[rows, cols])
         self._correct(rows[point], z[cols[point]], r_point[point])
+        self.motion_seen[rows[point]] = t
         if anchor.any():
             rows_a, z_a, r_a = rows[anchor], z[cols[anchor]], r[cols[anchor]]
             for k in range(2):  # along x, then along y
@@ -528,6 +536,7 @@ class ObstacleTracker:
                 (direction[along] * z_l[along]).sum(axis=1),
                 r[cols_l[along]],
             )
+            self.motion_seen[rows_l[along]] = t
             slide = ~along
             self._reanchor(rows_l[slide], direction[slide], z_l[slide], r[cols_l[slide]])
         self.whole_line[rows] = whole[cols]
@@ -714,6 +723,7 @@ class ObstacleTracker:
         self.clearance = np.concatenate((self.clearance, np.zeros(n)))
         self.whole_line = np.concatenate((self.whole_line, whole_line))
         self.anchored = np.concatenate((self.anchored, np.zeros(n, dtype=bool)))
+        self.motion_seen = np.concatenate((self.motion_seen, np.full(n, -np.inf)))
         self.last_kind = np.concatenate((self.last_kind, kind.astype(np.int8)))
         self.last_boxed = np.concatenate((self.last_boxed, boxed))
         self.small_size = np.concatenate((self.small_size, np.zeros(n)))
@@ -778,6 +788,7 @@ class ObstacleTracker:
             "clearance",
             "whole_line",
             "anchored",
+            "motion_seen",
             "last_kind",
             "last_boxed",
             "small_size",
@@ -814,6 +825,7 @@ class ObstacleTracker:
         )
         danger = danger_level(position, speed, size, clearance, *velocity, self.danger)
         kind = self.votes[out].argmax(axis=1)
+        measured = t - self.motion_seen[out] <= self.params.unseen_motion_time
         moved = line_through(self.line[out], self.state[out, :2])
         ends = inv.apply(moved.reshape(-1, 2)).reshape(-1, 4)
         shapes = [
@@ -838,8 +850,9 @@ class ObstacleTracker:
                 age=t - b,
                 danger=_DANGERS[d],
                 shape=sh,
+                motion_measured=m,
             )
-            for i, k, (x, y), (vx, vy), cov, sz, cl, b, d, sh in zip(
+            for i, k, (x, y), (vx, vy), cov, sz, cl, b, d, sh, m in zip(
                 self.ids[out].tolist(),
                 kind.tolist(),
                 position.tolist(),
@@ -850,6 +863,7 @@ class ObstacleTracker:
                 self.born[out].tolist(),
                 danger.tolist(),
                 shapes,
+                measured.tolist(),
                 strict=True,
             )
         )

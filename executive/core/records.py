@@ -314,7 +314,11 @@ class TrackedObstacle:
     ``size`` is the radius of a circle enclosing the cluster, ``clearance`` the distance
     from the robot's footprint to its nearest point, ``age`` the time since it was first
     seen (s). ``shape`` holds the fitted parameters in R: (cx, cy, r) for a circle,
-    (x0, y0, x1, y1) for a line's end points, () otherwise.
+    (x0, y0, x1, y1) for a line's end points, () otherwise. ``motion_measured``: the
+    velocity was measured on both axes lately (within the tracker's
+    ``unseen_motion_time``): a view of the whole object, or for a line its two true ends
+    in consecutive scans; a line followed only in part has its motion along itself
+    unmeasured (:func:`behaviours.laws.obstacles.vouched_velocity`).
     """
 
     id: int
@@ -327,6 +331,7 @@ class TrackedObstacle:
     age: float
     danger: Danger = Danger.NONE
     shape: tuple[float, ...] = ()
+    motion_measured: bool = False
 
     @property
     def speed(self) -> float:
