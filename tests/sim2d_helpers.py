@@ -101,20 +101,29 @@ def assert_finished_by_servoing(run, first: int | None = None) -> list[str]:
     visual servoing (the last controller before its inspection, correct camera angle aside)
     within 2 cm and 0.5 deg of its true pose; the one-point (bearing-only) targets, which the
     compiler warns about, are metric. Returns the ids of the servoed checkpoints."""
-    assert not [w for w in run.warnings if "servo-metric" in w], run.warnings
+    controllers = [e.detail["to"] for e in run.result.events if e.kind == "controller"]
+    return assert_servoed(
+        run.scenario.mission.checkpoints[:first], run.checkpoints, run.warnings, controllers
+    )
+
+
+def assert_servoed(checkpoints, outcomes, warnings: list[str], controllers: list[str]) -> list[str]:
+    """:func:`assert_finished_by_servoing` on its parts: the mission's ``checkpoints``,
+    their ``outcomes`` (``position_error``, ``heading_error_deg``: a run's or a report's,
+    in the same order; may be fewer), the compiler's ``warnings`` and the names of the
+    controllers switched to, in order (also the report's ``events.jsonl``)."""
+    assert not [w for w in warnings if "servo-metric" in w], warnings
     bearing_only = {
         cp.id
-        for cp in run.scenario.mission.checkpoints
-        if any(f"checkpoint '{cp.id}'" in w and "servo-bearing-only" in w for w in run.warnings)
+        for cp in checkpoints
+        if any(f"checkpoint '{cp.id}'" in w and "servo-bearing-only" in w for w in warnings)
     }
-    names = [e.detail["to"] for e in run.result.events if e.kind == "controller"]
     servoed = []
-    judged = zip(run.scenario.mission.checkpoints[:first], run.checkpoints, strict=False)
-    for cp, outcome in judged:
+    for cp, outcome in zip(checkpoints, outcomes, strict=False):
         if cp.target is None or cp.id in bearing_only:
             continue
-        inspect = names.index(f"inspect {cp.id}")
-        before = [n for n in names[:inspect] if not n.startswith("correct ")]
+        inspect = controllers.index(f"inspect {cp.id}")
+        before = [n for n in controllers[:inspect] if not n.startswith("correct ")]
         assert before[-1].startswith("visual servoing ("), (cp.id, before[-3:])
         assert outcome.position_error <= SERVO_POSITION, (cp.id, outcome)
         assert outcome.heading_error_deg <= SERVO_HEADING_DEG, (cp.id, outcome)

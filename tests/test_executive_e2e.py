@@ -15,46 +15,56 @@ import pytest
 
 from executive.core.records import OperatorRequests
 from executive.dryrun import dry_run
-from executive.report import metrics, write_report
+from executive.report import metrics
 from sim2d.scenario import load_scenario
 from tests.conftest import MISSIONS
-from tests.sim2d_helpers import assert_finished_by_servoing, make_scenario
-from tests.test_recording import assert_whole_run_recorded
+from tests.sim2d_helpers import assert_finished_by_servoing, make_scenario, stop_once_done
 
 pytestmark = pytest.mark.slow
 
 
-def _assert_mission_succeeded(run):
-    assert run.result.outcome == "completed", run.result.reason
+def _assert_mission_succeeded(run, first: int | None = None):
+    """The mission completed (``first``: the run was stopped once that many checkpoints
+    were done, by :func:`stop_once_done`), on ground truth: no collision or breach, every
+    checkpoint (the first ones) reached within 0.15 m and 5 deg, every item of it
+    inspected and detected."""
+    if first is None:
+        assert run.result.outcome == "completed", run.result.reason
+    else:
+        assert len(run.checkpoints) >= first, (run.result.outcome, run.result.reason)
     assert not run.robot.truth.collisions
     assert not run.breaches
-    mission = run.scenario.mission
-    for cp, outcome in zip(mission.checkpoints, run.checkpoints, strict=True):
+    checkpoints = run.scenario.mission.checkpoints[:first]
+    for cp, outcome in zip(checkpoints, run.checkpoints[:first], strict=True):
         assert outcome.reached, cp.id
         assert outcome.position_error <= 0.15, (cp.id, outcome)
         assert outcome.heading_error_deg <= 5.0, (cp.id, outcome)
         assert outcome.items == len(cp.items), cp.id  # every item inspected
     results = run.result.progress.results
-    assert len(results) == sum(len(cp.items) for cp in mission.checkpoints)
+    assert len(results) == sum(len(cp.items) for cp in checkpoints)
     assert all(r.detected for r in results)
 
 
-@pytest.mark.parametrize("kind", ["a320", "b737-800"])
-def test_preflight_with_the_aircraft_parked_off_its_mark(kind, tmp_path):
-    """ISSUE 4 and 5 acceptance on one whole run per type (the offset apron is the clear
-    apron with the aircraft parked off its nominal pose, about a metre and 5-6 deg; the
-    clear apron's own A320 run is CI's main job): the laser registration finds the
-    aircraft, so every checkpoint (given in F) is reached within 0.15 m and 5 deg of where
-    it really is; issue 13, visual servoing is on by default on the airliners and finishes
-    every checkpoint whose target it can servo on within 2 cm and 0.5 deg; the report is
-    written whole, and, issue 15, the A320's MCAP holds every topic for the whole run."""
-    record = tmp_path / "run.mcap" if kind == "a320" else None
-    run = dry_run(load_scenario(MISSIONS / kind / "scenarios" / "offset-apron.xml"), record=record)
-    _assert_mission_succeeded(run)
-    servoed = assert_finished_by_servoing(run)  # issue 13: the image, not the registration
-    assert len(servoed) >= len(run.checkpoints) - 2, servoed
-    if record is not None:
-        assert_whole_run_recorded(run, record)
+@pytest.mark.parametrize(("kind", "first"), [("a320", 12), ("b737-800", None)])
+def test_preflight_with_the_aircraft_parked_off_its_mark(kind, first):
+    """ISSUE 4 and 5 acceptance with the aircraft parked off its nominal pose (the offset
+    apron is the clear apron with the aircraft about a metre and 5-6 deg off its mark):
+    the laser registration finds the aircraft, so every checkpoint (given in F) is reached
+    within 0.15 m and 5 deg of where it really is; issue 13, visual servoing is on by
+    default on the airliners and finishes every checkpoint whose target it can servo on
+    within 2 cm and 0.5 deg. The B737 is run whole; the A320 until its first 12
+    checkpoints are done (the README's main job, tests/test_readme.py, is the whole A320
+    pre-flight on the clear apron, with its report and recording)."""
+    stop, enough = stop_once_done(first) if first is not None else (None, None)
+    run = dry_run(
+        load_scenario(MISSIONS / kind / "scenarios" / "offset-apron.xml"),
+        stop=stop,
+        observers=[enough] if enough is not None else [],
+    )
+    assert first is None or stop, (run.result.outcome, run.result.reason)
+    _assert_mission_succeeded(run, first)
+    servoed = assert_finished_by_servoing(run, first)  # issue 13: the image, not the registration
+    assert len(servoed) >= len(run.checkpoints[:first]) - 2, servoed
     report = metrics(run)
     loc = report["localisation"]
     assert loc["registrations"]["global"]["accepted"] >= 1
@@ -65,14 +75,6 @@ def test_preflight_with_the_aircraft_parked_off_its_mark(kind, tmp_path):
     assert loc["placement_error_final"]["heading_deg"] < 0.3
     kinds = [e.kind for e in run.result.events]
     assert "registration" in kinds and "localisation" in kinds
-    out = write_report(run, tmp_path / "report")
-    written = json.loads((out / "metrics.json").read_text())
-    assert written["succeeded"] and written["checkpoints_reached"] == len(run.checkpoints)
-    assert (out / "trajectory.png").stat().st_size > 10_000
-    assert (out / "timeline.png").stat().st_size > 10_000
-    events = [json.loads(line) for line in (out / "events.jsonl").read_text().splitlines()]
-    switches = [e for e in events if e["event"] == "controller"]
-    assert switches and all("reason" in e for e in switches)
 
 
 LAB = {"mission_type": "lab", "mission": "visual-servoing.xml"}
