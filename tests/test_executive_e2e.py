@@ -30,8 +30,6 @@ def _assert_mission_succeeded(run, first: int | None = None):
     inspected and detected."""
     if first is None:
         assert run.result.outcome == "completed", run.result.reason
-    else:
-        assert len(run.checkpoints) >= first, (run.result.outcome, run.result.reason)
     assert not run.robot.truth.collisions
     assert not run.breaches
     checkpoints = run.scenario.mission.checkpoints[:first]
