@@ -197,6 +197,10 @@ class Runtime:
         self.max_missed_deadlines = max_missed_deadlines
         self._missed_in_a_row = 0
         self.root = compiled.root
+        # py_trees' blackboard is process-wide: a run starts from an empty one, not from
+        # what the last run in this process left (a follow run read a lab run's values;
+        # a campaign worker runs its episodes one after another)
+        py_trees.blackboard.Blackboard.storage.clear()
         self.bb = py_trees.blackboard.Client(name="runtime")
         for key in (SENSOR_FRAME, OPERATOR, COMMAND):
             self.bb.register_key(key=key.name, access=py_trees.common.Access.WRITE)
