@@ -29,8 +29,6 @@ from tests.conftest import REPO
 from tests.sim2d_helpers import assert_servoed
 from tests.test_recording import assert_whole_run_recorded
 
-pytestmark = pytest.mark.slow
-
 
 def quick_start() -> list[str]:
     """The command lines of the README's first code block (its quick start)."""
@@ -53,6 +51,7 @@ def test_the_quick_start_is_two_lines_setup_and_main_job_then_the_tests():
     assert second.endswith("python -m pytest -q") and 'pip install ".[test]"' in second
 
 
+@pytest.mark.slow
 def test_the_readme_main_job_completes_the_a320_preflight(tmp_path: Path):
     argv = main_job()
     out = tmp_path / "dry-run"
