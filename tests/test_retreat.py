@@ -244,6 +244,28 @@ def test_no_worse_keeps_every_mover_out_of_r_es_that_standing_keeps_out():
     assert not retreat.no_worse([chaser, crosser], 1.0)
 
 
+def test_a_far_mover_that_stays_out_of_r_es_does_not_veto_an_escape():
+    """A320 busy-apron episode 72: a chaser coming in on the robot's left at 1.2 m/s is
+    inside r_ES and will strike the standing robot within half a second; running on
+    ahead keeps it off. A walker 9 m ahead, out of r_ES whether the robot stands or runs,
+    only sees its gap shrink. Compared by that gap, the escape counted as worse than
+    standing for the walker and the robot stood until struck."""
+    retreat = Retreat(L, W, R_ES, frozenset({FORWARD, BACKWARD}), max_speed=2.0)
+    chaser = mover(-0.64, 1.3, 0.41, -1.16)
+    assert chaser.clearance < R_ES
+    walker = mover(9.5, 0.5, -0.3)
+    (far_standing,) = retreat.predict([walker], 0.0)
+    (far_running,) = retreat.predict([walker], 1.5)
+    assert far_running.gap < far_standing.gap - 3.0  # closer, yet
+    assert far_running.intrusion == math.inf  # never inside r_ES
+    assert far_running.key == far_standing.key  # out of harm's way alike
+    assert retreat.threatened([chaser])
+    v = retreat.speed(np.array([[-0.8, 1.1]]), 0.5, [chaser, walker])
+    assert v > 0.41  # ahead, faster than the chaser comes on along the robot
+    assert retreat.no_worse([chaser, walker], v)
+    assert retreat.predict([chaser], v)[0].contact == math.inf
+
+
 def test_a_fast_retreat_needs_room_to_stop():
     retreat = Retreat(L, W, R_ES, frozenset({FORWARD}), max_speed=2.0, max_acceleration=1.0)
     assert retreat.room_for(RETREAT_SPEED) == R_ES

@@ -231,6 +231,13 @@ class Prediction:
 
     @property
     def key(self) -> tuple[float, float, float]:
+        """What the motions are compared by. A mover kept out of r_ES over the whole
+        horizon is out of harm's way at any gap: all such count alike, (inf, inf, inf).
+        Ranking them by gap let a walker 9 m off, whose gap an escape brought down to
+        5 m, veto the escape from a chaser about to strike (A320 busy-apron episode
+        72)."""
+        if self.intrusion == math.inf:
+            return (math.inf, math.inf, math.inf)
         return (self.intrusion, self.contact, self.gap)
 
 
