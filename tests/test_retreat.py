@@ -251,19 +251,33 @@ def test_a_far_mover_that_stays_out_of_r_es_does_not_veto_an_escape():
     only sees its gap shrink. Compared by that gap, the escape counted as worse than
     standing for the walker and the robot stood until struck."""
     retreat = Retreat(L, W, R_ES, frozenset({FORWARD, BACKWARD}), max_speed=2.0)
-    chaser = mover(-0.64, 1.3, 0.41, -1.16)
-    assert chaser.clearance < R_ES
     walker = mover(9.5, 0.5, -0.3)
     (far_standing,) = retreat.predict([walker], 0.0)
     (far_running,) = retreat.predict([walker], 1.5)
     assert far_running.gap < far_standing.gap - 3.0  # closer, yet
     assert far_running.intrusion == math.inf  # never inside r_ES
     assert far_running.key == far_standing.key  # out of harm's way alike
-    assert retreat.threatened([chaser])
+    chaser = mover(-0.64, 1.3, 0.41, -1.16)
+    assert chaser.clearance < R_ES and retreat.threatened([chaser])
     v = retreat.speed(np.array([[-0.8, 1.1]]), 0.5, [chaser, walker])
     assert v > 0.41  # ahead, faster than the chaser comes on along the robot
     assert retreat.no_worse([chaser, walker], v)
     assert retreat.predict([chaser], v)[0].contact == math.inf
+
+
+def test_an_escape_that_is_never_struck_beats_one_that_delays_r_es_and_is_struck():
+    """The same chaser a few centimetres further out, just beyond r_ES: running at
+    0.56 m/s lets it inside r_ES 2 ms later than running faster does, and is struck
+    0.55 s on. Ranked on the time inside r_ES first, that crawl was the best escape;
+    ranked on contact first, the robot runs fast enough never to be touched."""
+    retreat = Retreat(L, W, R_ES, frozenset({FORWARD, BACKWARD}), max_speed=2.0)
+    chaser = mover(-0.64, 1.37, 0.41, -1.16)
+    assert chaser.clearance > R_ES and retreat.threatened([chaser])
+    v = retreat.speed(np.array([[-0.8, 1.1]]), 0.5, [chaser])
+    assert retreat.predict([chaser], v)[0].contact == math.inf
+    assert retreat.no_worse([chaser], v)
+    slow = retreat.predict([chaser], 0.56)[0]
+    assert slow.contact < math.inf and slow.intrusion > retreat.predict([chaser], v)[0].intrusion
 
 
 def test_a_fast_retreat_needs_room_to_stop():

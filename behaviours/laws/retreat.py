@@ -13,9 +13,9 @@ same way out, under rules that never bring the robot closer to anything:
   when a tracked mover would come inside r_ES of the robot standing where it is within
   :data:`THREAT_HORIZON` (:func:`predictions`: a walker or a trolley pressing on, one
   crossing into the robot's side), the side and speed up to twice the mover's speed
-  that keep the movers out of r_ES longest (a crawl they would catch), with room to
-  stop; under a threat never a motion that fares worse than standing still against
-  any mover;
+  that keep the movers off the footprint longest, then out of r_ES longest (a crawl
+  they would catch), with room to stop; under a threat never a motion that fares worse
+  than standing still against any mover;
 * into a *corridor* (:func:`corridor_clearance`: ahead of the axle in the direction of
   motion, within half the robot's width plus r_ES of its axis) that the lasers cover
   (:func:`covered_sides`) and that holds no return inside r_ES. Every return inside r_ES
@@ -223,7 +223,7 @@ class Prediction:
     """How one mover fares against a straight motion of the robot over the horizon:
     ``intrusion``, the first time (s) its gap falls below r_ES, ``contact`` the first
     time it reaches the footprint (inf: never), and ``gap``, the smallest gap (m). The
-    larger, the better, in that order (:meth:`key`)."""
+    larger, the better (:meth:`key`)."""
 
     intrusion: float
     contact: float
@@ -231,14 +231,17 @@ class Prediction:
 
     @property
     def key(self) -> tuple[float, float, float]:
-        """What the motions are compared by. A mover kept out of r_ES over the whole
-        horizon is out of harm's way at any gap: all such count alike, (inf, inf, inf).
-        Ranking them by gap let a walker 9 m off, whose gap an escape brought down to
-        5 m, veto the escape from a chaser about to strike (A320 busy-apron episode
-        72)."""
+        """What the motions are compared by: (contact, intrusion, gap), the larger the
+        better in that order. Being struck is what a retreat is for avoiding: a motion
+        that keeps a mover off the footprint beats one that only lets it inside r_ES a
+        few milliseconds later and is struck (an escape under the latch, where the robot
+        is stopped already). A mover kept out of r_ES over the whole horizon is out of
+        harm's way at any gap: all such count alike, (inf, inf, inf). Ranking them by gap
+        let a walker 9 m off, whose gap an escape brought down to 5 m, veto the escape
+        from a chaser about to strike (A320 busy-apron episode 72)."""
         if self.intrusion == math.inf:
             return (math.inf, math.inf, math.inf)
-        return (self.intrusion, self.contact, self.gap)
+        return (self.contact, self.intrusion, self.gap)
 
 
 def predictions(
@@ -492,21 +495,22 @@ class Retreat:
 
     def no_worse(self, tracks: Iterable[TrackedObstacle], velocity: float) -> bool:
         """Whether a retreat at ``velocity`` (robot frame, m/s) fares no worse than
-        standing still against every mover (:class:`Prediction`: no mover inside r_ES
-        sooner, none that standing keeps out, none touching sooner, no smaller gap for
-        one that comes in at the same time): under a threat, the condition of any
-        retreat."""
+        standing still against every mover (:attr:`Prediction.key`: none that standing
+        keeps out of r_ES comes in, none touching sooner, none inside r_ES sooner among
+        those that touch as soon, no smaller gap for one that comes in at the same
+        time): under a threat, the condition of any retreat."""
         tracks = tuple(tracks)
         return _dominates(self.predict(tracks, velocity), self.predict(tracks, 0.0))
 
     @staticmethod
     def _score(found: list[Prediction]) -> tuple[float, float, float]:
-        """The worst of the movers' (intrusion, contact, gap), each on its own: what a
-        retreat's speed is chosen by."""
+        """The worst of the movers' :attr:`Prediction.key` (contact, intrusion, gap),
+        each on its own: what a retreat's speed is chosen by."""
+        keys = [p.key for p in found]
         return (
-            min((p.intrusion for p in found), default=math.inf),
-            min((p.contact for p in found), default=math.inf),
-            min((p.gap for p in found), default=math.inf),
+            min((k[0] for k in keys), default=math.inf),
+            min((k[1] for k in keys), default=math.inf),
+            min((k[2] for k in keys), default=math.inf),
         )
 
     def speed(
@@ -517,7 +521,7 @@ class Retreat:
         Under a threat (:meth:`threatened`): of the :data:`ESCAPE_SPEEDS` speeds up to
         :meth:`top_speed` on each of the :func:`open_sides` that leave room to stop
         (:meth:`room_for`) and are :meth:`no_worse` than standing, the slowest whose
-        movers come inside r_ES and reach the footprint no sooner than the best's and
+        movers reach the footprint and come inside r_ES no sooner than the best's and
         whose smallest gap is within :data:`GAP_SLACK` of it (no smaller, once a mover is
         inside r_ES), when that best beats standing still.
         Otherwise a crawl at :data:`RETREAT_SPEED` towards the open side with the most
@@ -541,9 +545,9 @@ class Retreat:
             best = max(scores, default=None)
             if best is not None and best > self._score(standing):
                 # a mover already inside r_ES: no ground given (:data:`GAP_SLACK`)
-                slack = GAP_SLACK if best[0] > 0.0 else 0.0
-                for v, (intrusion, contact, gap) in zip(candidates, scores, strict=True):
-                    if (intrusion, contact) >= best[:2] and gap >= best[2] - slack:
+                slack = GAP_SLACK if best[1] > 0.0 else 0.0
+                for v, (contact, intrusion, gap) in zip(candidates, scores, strict=True):
+                    if (contact, intrusion) >= best[:2] and gap >= best[2] - slack:
                         return float(v)  # the slowest near the best
         if not closest < self.r_es + RETREAT_CLEARANCE:
             return 0.0
