@@ -104,6 +104,7 @@ FORWARD, BACKWARD = 1, -1
 SIDES = (FORWARD, BACKWARD)
 
 _SAMPLES = 9  # per metre along and across a corridor, for the coverage check
+_DIGITS = 9  # predictions' times (s) and gaps (m) are compared to the nanosecond, nanometre
 
 
 def corridor_clearance(
@@ -244,6 +245,73 @@ class Prediction:
         return (self.contact, self.intrusion, self.gap)
 
 
+def entry_time(
+    x: float,
+    y: float,
+    ux: float,
+    uy: float,
+    length: float,
+    width: float,
+    reach: float,
+    horizon: float,
+) -> float:
+    """The first time ``t`` in [0, ``horizon``] (s) at which the point ``(x, y) + (ux,
+    uy) t`` (robot frame, m and m/s) is within ``reach`` (m, >= 0) of the length x width
+    footprint at the axle centre (:func:`footprint_distances`); inf when it never is.
+    Exact: the footprint grown by ``reach`` is the union of two rectangles (grown along
+    each axis) and four discs at the corners; the point's ray enters each in closed form
+    (slabs; a quadratic), so no sampling step can miss a corner or shift the time."""
+    hl, hw = 0.5 * length, 0.5 * width
+    first = math.inf
+    for ax, ay in ((hl + reach, hw), (hl, hw + reach)):
+        lo, hi = 0.0, horizon
+        for p, u, a in ((x, ux, ax), (y, uy, ay)):
+            if u == 0.0:
+                if abs(p) > a:
+                    lo, hi = math.inf, -math.inf
+                continue
+            t1, t2 = (-a - p) / u, (a - p) / u
+            lo, hi = max(lo, min(t1, t2)), min(hi, max(t1, t2))
+        if lo <= hi:
+            first = min(first, lo)
+    for cx in (-hl, hl):
+        for cy in (-hw, hw):
+            px, py = x - cx, y - cy
+            c = px * px + py * py - reach * reach
+            if c <= 0.0:
+                return 0.0
+            a = ux * ux + uy * uy
+            b = px * ux + py * uy  # half the linear coefficient
+            disc = b * b - a * c
+            if a > 0.0 and b < 0.0 and disc >= 0.0:
+                t = (-b - math.sqrt(disc)) / a
+                if t <= horizon:
+                    first = min(first, t)
+    return first
+
+
+def segment_gap(
+    x: float, y: float, ux: float, uy: float, length: float, width: float, horizon: float
+) -> float:
+    """The smallest distance (m) of the point ``(x, y) + (ux, uy) t``, t in [0,
+    ``horizon``], to the footprint (:func:`entry_time`'s frame and point): 0 when it
+    reaches it, else attained at an end of the segment or at a corner of the footprint
+    (the nearest points of two disjoint convex shapes: a vertex of one, an edge of the
+    other)."""
+    if entry_time(x, y, ux, uy, length, width, 0.0, horizon) < math.inf:
+        return 0.0
+    ex, ey = x + ux * horizon, y + uy * horizon
+    ends = footprint_distances_xy(np.array([x, ex]), np.array([y, ey]), length, width)
+    best = float(ends.min())
+    dx, dy = ex - x, ey - y
+    span = dx * dx + dy * dy
+    for cx in (-0.5 * length, 0.5 * length):
+        for cy in (-0.5 * width, 0.5 * width):
+            s = 0.0 if span == 0.0 else min(1.0, max(0.0, ((cx - x) * dx + (cy - y) * dy) / span))
+            best = min(best, math.hypot(x + s * dx - cx, y + s * dy - cy))
+    return best
+
+
 def predictions(
     tracks: Iterable[TrackedObstacle],
     velocity: float,
@@ -251,27 +319,31 @@ def predictions(
     width: float,
     r_es: float,
     horizon: float = THREAT_HORIZON,
-    step: float = 0.02,
 ) -> list[Prediction]:
     """Per moving track (:func:`movers`, in order), its :class:`Prediction` against the
     footprint driving straight at ``velocity`` (robot frame, m/s), the track at its
-    velocity; the gap is the tracked point's distance to the footprint less the track's
-    size, sampled every ``step`` m of relative travel (so that a fast mover cannot pass a
-    corner between two samples). A gap that is not a number counts as -inf (an unknown
-    is a threat)."""
+    velocity: its gap is the tracked point's distance to the footprint less the track's
+    size, its intrusion and contact the exact times that gap falls below r_ES and to 0
+    (:func:`entry_time`; a time sampled on a grid that depends on the relative speed
+    moved by a grid step from one velocity to the next, and a retreat that changed
+    nothing for a mover beside the body counted as bringing its contact a few
+    milliseconds sooner: A320 busy-apron episode 94). A position or velocity that is not
+    a number counts as touching now with a gap of -inf (an unknown is a threat)."""
     out = []
     for track in movers(tracks):
         vx, vy = vouched_velocity(track)
-        rel_v = (vx - velocity, vy)
-        n = max(2, math.ceil(math.hypot(*rel_v) * horizon / step) + 1)
-        t = np.linspace(0.0, horizon, n)
-        rel = np.column_stack((track.position[0] + rel_v[0] * t, track.position[1] + rel_v[1] * t))
-        gaps = footprint_distances(rel, length, width) - track.size
-        gaps = np.where(np.isnan(gaps), -np.inf, gaps)
-        inside, touching = np.flatnonzero(gaps < r_es), np.flatnonzero(gaps <= 0.0)
-        intrusion = float(t[inside[0]]) if len(inside) else math.inf
-        contact = float(t[touching[0]]) if len(touching) else math.inf
-        out.append(Prediction(intrusion, contact, float(gaps.min())))
+        ux, uy = vx - velocity, vy
+        x, y = track.position
+        if not all(math.isfinite(c) for c in (x, y, ux, uy, track.size)):
+            out.append(Prediction(0.0, 0.0, -math.inf))
+            continue
+        size = track.size
+        intrusion = entry_time(x, y, ux, uy, length, width, r_es + size, horizon)
+        contact = entry_time(x, y, ux, uy, length, width, size, horizon)
+        gap = segment_gap(x, y, ux, uy, length, width, horizon) - size
+        # one instant reached by two formulas (a slab, a corner's disc) differs in the
+        # last bits: rounded, it compares equal
+        out.append(Prediction(*(round(float(q), _DIGITS) for q in (intrusion, contact, gap))))
     return out
 
 
