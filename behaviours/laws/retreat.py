@@ -300,13 +300,15 @@ def segment_gap(
     other)."""
     if entry_time(x, y, ux, uy, length, width, 0.0, horizon) < math.inf:
         return 0.0
+    hl, hw = 0.5 * length, 0.5 * width
     ex, ey = x + ux * horizon, y + uy * horizon
-    ends = footprint_distances_xy(np.array([x, ex]), np.array([y, ey]), length, width)
-    best = float(ends.min())
+    best = min(
+        math.hypot(max(abs(px) - hl, 0.0), max(abs(py) - hw, 0.0)) for px, py in ((x, y), (ex, ey))
+    )
     dx, dy = ex - x, ey - y
     span = dx * dx + dy * dy
-    for cx in (-0.5 * length, 0.5 * length):
-        for cy in (-0.5 * width, 0.5 * width):
+    for cx in (-hl, hl):
+        for cy in (-hw, hw):
             s = 0.0 if span == 0.0 else min(1.0, max(0.0, ((cx - x) * dx + (cy - y) * dy) / span))
             best = min(best, math.hypot(x + s * dx - cx, y + s * dy - cy))
     return best
