@@ -291,7 +291,7 @@ def test_an_escape_that_is_never_struck_beats_standing_to_be_struck_later():
 )
 def test_property_entry_time_and_gap_are_those_of_the_motion_sampled_finely(start, u, reach):
     """The exact times and gaps the predictions are made of, against the point's path
-    sampled every 0.1 mm."""
+    sampled every 0.1 ms."""
     (x, y), (ux, uy), horizon = start, u, 3.0
     t = np.linspace(0.0, horizon, 30_001)
     d = footprint_distances(np.column_stack((x + ux * t, y + uy * t)), L, W)
