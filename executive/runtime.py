@@ -199,7 +199,8 @@ class Runtime:
         self.root = compiled.root
         # py_trees' blackboard is process-wide: a run starts from an empty one, not from
         # what the last run in this process left (a follow run read a lab run's values;
-        # a campaign worker runs its episodes one after another)
+        # a campaign worker runs its episodes one after another). Values only, not
+        # Blackboard.clear(): the compiled tree's clients are registered already
         py_trees.blackboard.Blackboard.storage.clear()
         self.bb = py_trees.blackboard.Client(name="runtime")
         for key in (SENSOR_FRAME, OPERATOR, COMMAND):

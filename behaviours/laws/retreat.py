@@ -302,9 +302,7 @@ def segment_gap(
         return 0.0
     hl, hw = 0.5 * length, 0.5 * width
     ex, ey = x + ux * horizon, y + uy * horizon
-    best = min(
-        math.hypot(max(abs(px) - hl, 0.0), max(abs(py) - hw, 0.0)) for px, py in ((x, y), (ex, ey))
-    )
+    best = float(footprint_distances_xy(np.array([x, ex]), np.array([y, ey]), length, width).min())
     dx, dy = ex - x, ey - y
     span = dx * dx + dy * dy
     for cx in (-hl, hl):
