@@ -16,11 +16,12 @@ from behaviours.controllers.avoidance import (
     AvoidanceParams,
     AvoidancePolicy,
     AvoidanceSession,
+    AvoidObstacle,
     DodgeObstacle,
     obstacle_discs,
 )
 from behaviours.goals import Goal
-from behaviours.keys import COMMAND, OBSTACLES, POSE
+from behaviours.keys import COMMAND, OBSTACLES, POSE, SENSOR_FRAME
 from behaviours.laws.obstacles import is_mover, vouched_velocity
 from behaviours.laws.spiral import SpiralObstacle
 from executive.campaign.runner import episode_row
@@ -29,7 +30,15 @@ from executive.compiler import CompileOptions, compile_mission
 from executive.core.frames import Pose2
 from executive.core.loader import load_mission
 from executive.core.model import Frame
-from executive.core.records import Danger, Obstacles, PoseEstimate, TrackedObstacle
+from executive.core.records import (
+    Danger,
+    ImuReading,
+    Obstacles,
+    PoseEstimate,
+    SensorFrame,
+    TrackedObstacle,
+    WheelSpeeds,
+)
 from tests.conftest import MISSIONS, blackboard_writer
 
 GOAL = Goal(Pose2(20.0, 0.0, 0.0), Frame.AIRPORT)
@@ -450,3 +459,62 @@ def test_campaign_episode_527_escapes_at_the_speed_it_will_get():
     row = episode_row(campaign, 527)
     assert row["succeeded"], row["causes"]
     assert row["collisions"] == []
+
+
+@pytest.mark.usefixtures("fresh_blackboard")
+@settings(max_examples=30, deadline=None)
+@given(
+    controller=st.sampled_from(["spiral", "velocity obstacles"]),
+    v=st.floats(-1.0, 1.2),
+    omega=st.floats(-0.5, 0.5),
+    imu=st.booleans(),
+    chaser=st.floats(-6.0, 6.0),
+)
+def test_an_avoidance_takes_over_from_the_motion_the_robot_has(controller, v, omega, imu, chaser):
+    """The avoidance controllers' first command is one tick's acceleration away from the
+    motion the robot has when they take over (its wheels, its IMU's yaw rate), whatever
+    the law asks: started from rest, velocity obstacles told a robot fleeing a chaser at
+    1.2 m/s to drive at 0.02 m/s, and the drive base braked it into the chaser's way
+    (A320 busy-apron campaign episode 66, three times in one run)."""
+    mission = load_mission(MISSIONS / "track" / "avoidance-leg.xml")
+    platform = mission.platform
+    session = AvoidanceSession(margin=1.4, obstacle_id=1)
+    if controller == "spiral":
+        session.mode = SPIRAL
+        node = AvoidObstacle(GOAL, session, platform, 0.02)
+    else:
+        session.mode = DODGE
+        node = DodgeObstacle(GOAL, session, platform, 0.02)
+    bb = blackboard_writer(OBSTACLES, POSE, COMMAND, SENSOR_FRAME)
+    track_width = platform.track or platform.width
+    half = 0.5 * omega * track_width
+    frame = SensorFrame(
+        1.0,
+        wheels=WheelSpeeds(1.0, v - half, v + half),
+        imu=ImuReading(1.0, omega) if imu else None,
+    )
+    bb.set(SENSOR_FRAME.name, frame, overwrite=True)
+    bb.set(POSE.name, pose(t=1.0), overwrite=True)
+    bb.set(OBSTACLES.name, obstacles(1.0, track(1, chaser, 0.5, v=(1.2, 0.0))), overwrite=True)
+    node.setup()
+    node.tick_once()
+    command = bb.get(COMMAND.name)
+    assert abs(command.v - v) <= platform.max_acceleration * 0.02 + 1e-9
+    assert abs(command.omega - omega) <= platform.max_angular_acceleration * 0.02 + 1e-9
+
+
+@pytest.mark.usefixtures("fresh_blackboard")
+def test_an_avoidance_without_wheel_speeds_starts_from_rest():
+    """No wheel speeds read yet: the limiter starts from rest (the one motion it may
+    assume), so the first command is within one tick's acceleration of a stop."""
+    mission = load_mission(MISSIONS / "track" / "avoidance-leg.xml")
+    session = AvoidanceSession(margin=1.4, obstacle_id=1, mode=DODGE)
+    node = DodgeObstacle(GOAL, session, mission.platform, 0.02)
+    bb = blackboard_writer(OBSTACLES, POSE, COMMAND, SENSOR_FRAME)
+    bb.set(SENSOR_FRAME.name, SensorFrame(1.0), overwrite=True)
+    bb.set(POSE.name, pose(t=1.0), overwrite=True)
+    bb.set(OBSTACLES.name, obstacles(1.0, track(1, -3.0, 0.0, v=(1.2, 0.0))), overwrite=True)
+    node.setup()
+    node.tick_once()
+    command = bb.get(COMMAND.name)
+    assert abs(command.v) <= mission.platform.max_acceleration * 0.02 + 1e-9

@@ -27,7 +27,8 @@ import py_trees
 
 from behaviours.base import Controller, Guard
 from behaviours.goals import Goal
-from behaviours.keys import COMMAND, OBSTACLES, POSE
+from behaviours.keys import COMMAND, OBSTACLES, POSE, SENSOR_FRAME
+from behaviours.laws.localisation import wheel_odometry
 from behaviours.laws.obstacles import vouched_velocity
 from behaviours.laws.rate_limit import RateLimiter, RateLimits
 from behaviours.laws.retreat import heading_clearances, slowdown_scale
@@ -52,6 +53,7 @@ from executive.core.records import (
     Danger,
     Obstacles,
     PoseEstimate,
+    SensorFrame,
     TrackedObstacle,
     VelocityCommand,
 )
@@ -539,9 +541,16 @@ class AvoidanceTrigger(Guard):
 class AvoidanceController(Controller):
     """What the avoidance controllers share: the navigation's goal and session, and a
     command rate limited to the platform (the thesis's future-work item: no oscillating
-    velocities), restarted from rest when the controller takes over."""
+    velocities).
 
-    reads = (OBSTACLES, POSE)
+    The limiter starts from the motion the robot has when the controller takes over (the
+    wheels' speeds, eq. 2.1-2.2, and the IMU's yaw rate), not from rest: a robot dodging
+    a chaser at 1.2 m/s that was told 0.02 m/s on its first avoidance tick was braked by
+    the drive base into the chaser's way (A320 busy-apron campaign episode 66). Without
+    wheel speeds it starts from rest.
+    """
+
+    reads = (OBSTACLES, POSE, SENSOR_FRAME)
     writes = (COMMAND,)
 
     def __init__(
@@ -549,6 +558,7 @@ class AvoidanceController(Controller):
     ) -> None:
         super().__init__(name)
         self.goal, self.session, self.period = goal, session, period
+        self.track = platform.track or platform.width
         self.limiter = RateLimiter(
             RateLimits(
                 max_acceleration=platform.max_acceleration,
@@ -559,7 +569,22 @@ class AvoidanceController(Controller):
         )
 
     def initialise(self) -> None:
-        self.limiter.reset(0.0, 0.0)
+        self.limiter.reset(*self.measured_motion())
+
+    def measured_motion(self) -> tuple[float, float]:
+        """(v, omega) the robot moves at: the wheels' (eq. 2.1-2.2), the IMU's yaw rate
+        when it is read, within the platform's limits; (0, 0) without wheel speeds."""
+        frame: SensorFrame | None = self.read(SENSOR_FRAME)
+        if frame is None or frame.wheels is None:
+            return 0.0, 0.0
+        v, omega = wheel_odometry(frame.wheels, self.track)
+        if frame.imu is not None:
+            omega = frame.imu.yaw_rate
+        limits = self.limiter.limits
+        top, turn = limits.max_speed or math.inf, limits.max_angular_speed or math.inf
+        if not (math.isfinite(v) and math.isfinite(omega)):
+            return 0.0, 0.0
+        return min(top, max(-top, v)), min(turn, max(-turn, omega))
 
     def drive(self, v: float, omega: float, why: str) -> Status:
         """Send (v, omega) through the rate limiter."""
