@@ -19,12 +19,15 @@ from tests.conftest import MISSIONS, wait_until
 LAB_MISSION = MISSIONS / "lab" / "visual-servoing.xml"
 LAB_CLEAR = MISSIONS / "lab" / "scenarios" / "clear-apron.xml"
 REPO = Path(__file__).resolve().parent.parent
-MISSED_DEADLINES = 50
+MISSED_DEADLINES = 250
 """The rig's two real-time processes share this machine's two cores with the other pytest
-worker (and the executive's own worker threads: registration, planner): stretches of 10
+worker (and the executive's own worker threads: registration, planner): stretches of
 ticks over 20 ms happen that a robot's dedicated computer would not see. These tests are
-about the wires; the overrun policy itself is tested in tests/test_run_faults.py. 50 ticks
-is one second of missed deadlines."""
+about the wires; the overrun policy itself is tested in tests/test_run_faults.py. Here the
+bound only catches an executive that has stopped keeping time at all: 250 ticks, five
+seconds. With 50 (one second), a local CI run failed the 40 m track when every tick of a
+second took 21-34 ms while the other worker dry-ran a full A320 mission (ticks 12.6 ms
+on average, 36.6 ms at the 99th percentile in that run); the same test passes alone."""
 
 
 def free_port(kind: int = socket.SOCK_STREAM) -> int:
