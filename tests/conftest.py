@@ -8,6 +8,8 @@ import cv2
 import py_trees
 import pytest
 
+from tests import durations
+
 # One thread per test worker, as OPENBLAS_NUM_THREADS=1 does for numpy: pytest-xdist
 # already runs a worker per core, and OpenCV's own pool (ORB, warps in the ceiling tests)
 # would crowd the HIL rig's real-time processes out of the other core (a lost 0.1 s base
@@ -23,6 +25,13 @@ SHIPPED_MISSIONS = {
     "b737-800": MISSIONS / "b737-800" / "preflight.xml",
     "lab": MISSIONS / "lab" / "visual-servoing.xml",
 }
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Longest tests first, as recorded in tests/durations.json (tests/durations.py says
+    why); the others after them, in collection order."""
+    recorded = durations.load()
+    items.sort(key=lambda item: -recorded.get(durations.test_id(item.nodeid), 0.0))
 
 
 @pytest.fixture(scope="session")
