@@ -119,7 +119,10 @@ the e-stop, faults and the geofence always win over the tree):
 **Stopping is always possible**: an e-stop, a fault, stale data or a geofence emergency
 outputs zero at once, even when that exceeds the deceleration (and jerk) limits: the
 platform brakes. Every other slowdown (slowdown zone, geofence slow/stop) respects the
-limits. After a stop the limits apply again from rest.
+limits. After a stop the limits apply again from the speed the wheels measure when the
+robot still rolls the way the next command asks (the base brakes at its own limits; a
+command ramped up from rest instead braked a robot backing away from a chaser to a crawl
+and let the chaser reach it: A320 busy-apron campaign episode 69), from rest otherwise.
 
 **Events** (:attr:`SafetyLayer.events`, append-only, drained by the runtime): one per change
 of state, not one per tick: ``estop-latched`` / ``estop-released`` / ``estop-reset`` /
@@ -624,6 +627,7 @@ class SafetyLayer:
         self._a = 0.0
         self._w = 0.0
         self._rest_sweep = 0.0  # sweep after the last output's own period (NaN: unknown)
+        self._stopped = False  # the last output was a forced stop
         self._binding = False  # a geofence rule could bind on the last period
         # e-stop latch
         self.latch = EStopLatch(mission.safety.r_es, mission.safety.estop_hold)
@@ -737,6 +741,8 @@ class SafetyLayer:
         self._update_estop(now, frame, obstacles, reset_requested, estop_requested)
         # 3. stale data
         self._update_stale(now, frame, pose, obstacles)
+        if self._stopped:
+            self._resume_from_the_wheels(frame, command.v)
         stop = self._stop_reason()
         retreating = stop is not None and self._retreat_admitted(command, obstacles)
         if retreating:
@@ -758,6 +764,7 @@ class SafetyLayer:
         if stop is not None:
             self._v = self._a = self._w = 0.0
             self._rest_sweep = 0.0
+            self._stopped = True
             d_min, zone = self._nearest(self._zone_clearance(xy))
             self._geofence_event(now, _NONE, zone, d_min, "")
             self._limit_events(now, set())
@@ -799,6 +806,7 @@ class SafetyLayer:
         if arc is not None and out is not cand:
             level = _EMERGENCY  # the geofence would bend the arc: stop instead
             retreating = self._retreating = False
+        self._stopped = level == _EMERGENCY
         if level == _EMERGENCY:
             self._v = self._a = self._w = 0.0
             self._rest_sweep = 0.0
@@ -819,6 +827,20 @@ class SafetyLayer:
             retreating=retreating,
         )
         return out_cmd
+
+    def _resume_from_the_wheels(self, frame: SensorFrame, v: float) -> None:
+        """After a forced stop: the rate limits start from the speed the wheels measure
+        when the robot still rolls the way ``v`` asks (module docstring), within the
+        platform's speed; the yaw rate and the acceleration from zero, as the stop sent."""
+        wheels = frame.wheels
+        if wheels is None:
+            return
+        measured = 0.5 * (wheels.left + wheels.right)
+        if not (math.isfinite(measured) and measured * v > 0.0):
+            return
+        self._v = math.copysign(min(abs(measured), self.limits.v_max), measured)
+        self._a = self._w = 0.0
+        self._rest_sweep = math.nan  # moving: the braking sweep is computed afresh
 
     def _retreat_admitted(self, command: VelocityCommand, obstacles: Obstacles | None) -> bool:
         """Whether ``command`` may back out of the current stop (rule 2's exception)."""

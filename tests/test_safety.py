@@ -128,6 +128,8 @@ class Bench:
         self.t = 0.0
         self.sent: list[VelocityCommand] = []
         self.statuses = []
+        self.wheel_speed = 0.0
+        """What the wheels measure (m/s, both wheels alike)."""
 
     def frame(self, scan_age: float = 0.0, bumper: bool = False, lasers: bool = True):
         """Every sensor of the platform, fresh (the lasers ``scan_age`` old)."""
@@ -146,7 +148,7 @@ class Bench:
                 c: CameraFrame(self.t) for u in platform.cameras for c in camera_ids(platform, u)
             },
             pan_tilt={u: PanTilt(self.t, 0.0, 0.0) for u in platform.cameras},
-            wheels=WheelSpeeds(self.t, 0.0, 0.0),
+            wheels=WheelSpeeds(self.t, self.wheel_speed, self.wheel_speed),
             imu=ImuReading(self.t, 0.0),
             gps=GpsFix(self.t, self.x, self.y, 0.03),
             bumpers=Bumpers(self.t, bumper, False),
@@ -776,6 +778,38 @@ def test_a_robot_still_turning_when_latched_stops_before_it_backs_out():
     assert is_zero(b.sent[2])
     for out, status in zip(b.sent[3:], b.statuses[3:], strict=True):
         assert status.retreating and out.omega == 0.0 and out.v < 0.0
+
+
+@pytest.mark.parametrize(("rolling", "from_the_wheels"), [(-0.7, True), (0.5, False)])
+def test_after_a_stop_the_limits_start_from_the_speed_the_wheels_measure(rolling, from_the_wheels):
+    """A robot backing away and turning is latched: the layer stops it (it still turns),
+    and the base brakes on its own, its wheels still rolling at ``rolling``. The retreat
+    that follows continues from that speed when the robot rolls its way, within one
+    period's acceleration of it: from rest, the command braked a robot backing away from
+    a chaser to a crawl, and the chaser reached it (A320 busy-apron episode 69). A robot
+    rolling the other way is ramped from rest, as before."""
+    lay = layer()
+    b = Bench(lay)
+    for _ in range(60):
+        b.step(cmd(-0.8, -0.3))
+    assert b.sent[-1].v == pytest.approx(-0.8) and b.sent[-1].omega < 0.0
+    r_es = mission().safety.r_es
+    retreat = cmd(-0.5 * RETREAT_SPEED, 0.0)
+    b.wheel_speed = -0.75
+    b.step(retreat, rc=r_es / 2)  # latched while turning: stopped first
+    assert lay.status.forced_stop and is_zero(b.sent[-1])
+    b.wheel_speed = rolling
+    out = b.step(retreat, rc=r_es / 2)
+    assert lay.status.estop_latched and lay.status.retreating
+    step = mission().platform.max_acceleration * PERIOD + TOL
+    start = rolling if from_the_wheels else 0.0
+    assert abs(out.v - start) <= step and out.omega == 0.0
+    for _ in range(60):  # then to the crawl within the limits, never past it
+        b.wheel_speed = b.sent[-1].v
+        previous, out = b.sent[-1].v, b.step(retreat, rc=r_es / 2)
+        assert lay.status.retreating and abs(out.v - previous) <= step
+        assert min(start, retreat.v) - TOL <= out.v <= 0.0
+    assert out.v == pytest.approx(retreat.v)
 
 
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
