@@ -81,7 +81,8 @@ the e-stop, faults and the geofence always win over the tree):
 5. **Magnitude limits**: |v| <= max_speed, |omega| <= max_angular_speed, each pan/tilt rate
    within its camera's pan_rate / tilt_rate; a rate for an unknown unit is dropped. Every
    output names every platform unit (zero when the tree gave no rate).
-6. **Rate limits**, with respect to the previously *sent* command and the fixed ``period``:
+6. **Rate limits**, with respect to the previously *sent* command (after a forced stop,
+   the speed the wheels measure: see below) and the fixed ``period``:
    |dv/dt| <= max_acceleration, |d2v/dt2| <= max_jerk (v follows a jerk-limited profile
    that never overshoots its target when that can be avoided), |domega/dt| <=
    max_angular_acceleration. Pan/tilt rates have no rate limit.
