@@ -580,10 +580,10 @@ class AvoidanceController(Controller):
         v, omega = wheel_odometry(frame.wheels, self.track)
         if frame.imu is not None:
             omega = frame.imu.yaw_rate
-        limits = self.limiter.limits
-        top, turn = limits.max_speed or math.inf, limits.max_angular_speed or math.inf
         if not (math.isfinite(v) and math.isfinite(omega)):
             return 0.0, 0.0
+        limits = self.limiter.limits
+        top, turn = limits.max_speed or math.inf, limits.max_angular_speed or math.inf
         return min(top, max(-top, v)), min(turn, max(-turn, omega))
 
     def drive(self, v: float, omega: float, why: str) -> Status:
