@@ -153,6 +153,7 @@ from behaviours.laws import estop
 from behaviours.laws.estop import OPERATOR as OPERATOR_ESTOP
 from behaviours.laws.estop import EStopLatch
 from behaviours.laws.freshness import Freshness
+from behaviours.laws.localisation import wheel_odometry
 from behaviours.laws.retreat import SLOWDOWN_FLOOR, Retreat, corridor_room, slowdown_scale
 from executive.core.frames import AircraftPlacement, FloatArray
 from executive.core.model import Circle, ForbiddenZone, Frame, Mission
@@ -836,7 +837,8 @@ class SafetyLayer:
         wheels = frame.wheels
         if wheels is None:
             return
-        measured = 0.5 * (wheels.left + wheels.right)
+        platform = self.mission.platform
+        measured, _ = wheel_odometry(wheels, platform.track or platform.width)
         if not (math.isfinite(measured) and measured * v > 0.0):
             return
         self._v = math.copysign(min(abs(measured), self.limits.v_max), measured)
