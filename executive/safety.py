@@ -837,8 +837,7 @@ class SafetyLayer:
         wheels = frame.wheels
         if wheels is None:
             return
-        platform = self.mission.platform
-        measured, _ = wheel_odometry(wheels, platform.track or platform.width)
+        measured, _ = wheel_odometry(wheels, self.mission.platform.odometry_track)
         if not (math.isfinite(measured) and measured * v > 0.0):
             return
         self._v = math.copysign(min(abs(measured), self.limits.v_max), measured)

@@ -486,7 +486,7 @@ def test_an_avoidance_takes_over_from_the_motion_the_robot_has(controller, v, om
         session.mode = DODGE
         node = DodgeObstacle(GOAL, session, platform, 0.02)
     bb = blackboard_writer(OBSTACLES, POSE, COMMAND, SENSOR_FRAME)
-    track_width = platform.track or platform.width
+    track_width = platform.odometry_track
     half = 0.5 * omega * track_width
     frame = SensorFrame(
         1.0,

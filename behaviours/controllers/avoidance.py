@@ -558,7 +558,7 @@ class AvoidanceController(Controller):
     ) -> None:
         super().__init__(name)
         self.goal, self.session, self.period = goal, session, period
-        self.track = platform.track or platform.width
+        self.track = platform.odometry_track
         self.limiter = RateLimiter(
             RateLimits(
                 max_acceleration=platform.max_acceleration,

@@ -93,7 +93,7 @@ class SenseObstacles(Node):
         wheels = frame.wheels
         if wheels is None or wheels.stamp == self._odom_stamp:
             return
-        v, omega = wheel_odometry(wheels, self.platform.track or self.platform.width)
+        v, omega = wheel_odometry(wheels, self.platform.odometry_track)
         if frame.imu is not None and math.isfinite(frame.imu.yaw_rate):
             omega = frame.imu.yaw_rate
         if self._odom_stamp is not None and math.isfinite(v) and math.isfinite(omega):

@@ -287,6 +287,12 @@ class Platform:
         return self.width / 2.0
 
     @property
+    def odometry_track(self) -> float:
+        """The wheel distance that turns wheel speeds into a yaw rate (eq. 2.2):
+        ``track``, or the width when the platform does not give its track."""
+        return self.track or self.width
+
+    @property
     def turning_radius(self) -> float:
         """Radius of the circle the footprint sweeps when the robot turns on the spot."""
         return math.hypot(self.length, self.width) / 2.0
