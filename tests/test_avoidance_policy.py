@@ -361,6 +361,33 @@ def test_velocity_obstacles_remember_how_fast_a_track_was():
     assert dodge._remembered(other, 1.6) == other
 
 
+@pytest.mark.usefixtures("fresh_blackboard")
+def test_velocity_obstacles_reverse_from_a_chaser_as_fast_as_they_would_drive():
+    """A walker comes head-on at 1.5 m/s, 3.5 m ahead: turning away takes too long, and
+    backing off at 1 m/s (the old cap on reversing) lets it close within the horizon
+    (A320 campaign episode 65: caught backing away from a 1.2 m/s trolley at 1 m/s,
+    while the safety layer's retreat that followed backed off at up to 1.64 m/s). The
+    controller reverses as fast as it would drive forwards (the escape factor x the
+    walker's speed, within the platform's), and that way out is clear."""
+    mission = load_mission(MISSIONS / "track" / "avoidance-leg.xml")
+    bb = blackboard_writer(OBSTACLES, POSE, COMMAND)
+    chaser = track(1, 3.5, 0.0, v=(-1.5, 0.0), size=0.3)
+    choices = {}
+    for cap in (None, 1.0):
+        session = AvoidanceSession(margin=1.4, obstacle_id=1, mode=DODGE)
+        dodge = DodgeObstacle(GOAL, session, mission.platform, 0.02, reverse_max=cap)
+        dodge.setup()
+        dodge.initialise()
+        bb.set(POSE.name, pose(t=0.5), overwrite=True)
+        bb.set(OBSTACLES.name, obstacles(0.5, chaser), overwrite=True)
+        dodge.tick_once()
+        choices[cap] = dodge.last
+    fast, capped = choices[None], choices[1.0]
+    assert fast.reverse and fast.feasible and fast.speed > 1.0
+    assert abs(math.remainder(fast.heading - math.pi, 2 * math.pi)) < math.radians(45)
+    assert not capped.feasible  # at 1 m/s no way out was clear
+
+
 def test_a_dodge_handed_back_for_slowing_down_needs_fast_speed_to_come_back():
     """Hysteresis between the two switches (campaign episode 141: a trolley standing in
     the way, its speed estimate hovering about ``slow_speed``, switched velocity obstacles

@@ -710,6 +710,11 @@ class DodgeObstacle(AvoidanceController):
     (:func:`behaviours.laws.retreat.slowdown_scale` of the corridor it drives into): an
     escape towards a parked vehicle is slower than commanded (campaign episode 527).
 
+    Reversing: as fast as driving forwards (both lasers watch), unless ``reverse_max``
+    caps it; the safety layer's retreat backs away from a chaser at up to the same escape
+    factor x its speed. Capped at 1 m/s, a robot reversing from a 1.2 m/s trolley was
+    caught (A320 campaign episode 65).
+
     Velocity memory: a track slower than it was within the last ``velocity_memory``
     seconds keeps that speed (in the direction it moves now, or the old velocity if it
     seems to stand). When a chaser passes a static obstacle the two merge into one
@@ -727,7 +732,7 @@ class DodgeObstacle(AvoidanceController):
         escape_factor: float = 2.0,
         reach: float = 8.0,
         zone_spacing: float = 0.4,
-        reverse_max: float = 1.0,
+        reverse_max: float | None = None,
         static_inset: float = 0.2,
         mover_margin: float = 0.4,
         mover_speed: float = 0.3,
@@ -796,7 +801,7 @@ class DodgeObstacle(AvoidanceController):
         v_max = min(self.platform.max_speed, max(self.nu_min, self.escape_factor * fastest))
         params = HeadingVoParams(
             v_max=v_max,
-            reverse_max=min(v_max, self.reverse_max),
+            reverse_max=v_max if self.reverse_max is None else min(v_max, self.reverse_max),
             omega_max=self.platform.max_angular_speed,
         )
         target = self.goal.in_airport(pose)
