@@ -236,3 +236,43 @@ def test_an_escape_the_slowdown_would_slow_is_judged_at_the_speed_it_will_get():
     assert seen.feasible and vehicle_behind(np.array([seen.heading]))[0] == 1.0
     turn, u = np.array([seen.turn_time]), seen.velocity[None]
     assert turn_then_go_contact(np.zeros(2), turn, u, walker, 0.8, params.horizon)[0] == math.inf
+
+
+@settings(max_examples=80, deadline=None)
+@given(
+    obstacles=st.lists(_discs, max_size=4).map(tuple),
+    theta=st.floats(-math.pi, math.pi),
+    preferred=st.tuples(st.floats(-2.0, 2.0), st.floats(-2.0, 2.0)),
+    speed_now=st.floats(-2.0, 2.0),
+)
+def test_a_way_out_against_the_motion_starts_once_the_robot_has_stopped(
+    obstacles, theta, preferred, speed_now
+):
+    """Whatever the scene, a chosen velocity that drives the other way than the robot
+    rolls is counted from the moment the robot can have braked to rest, and its contact
+    time is the one of that delayed start."""
+    params = HeadingVoParams(v_max=2.0, reverse_max=2.0, deceleration=1.0)
+    choice = choose_heading(
+        np.zeros(2), theta, np.array(preferred), obstacles, params, 0.8, None, None, speed_now
+    )
+    against = choice.speed > 0.0 and speed_now != 0.0 and choice.reverse == (speed_now > 0.0)
+    if against:
+        assert choice.turn_time >= abs(speed_now) / params.deceleration - 1e-12
+    turn, u = np.array([choice.turn_time]), choice.velocity[None]
+    contact = turn_then_go_contact(np.zeros(2), turn, u, obstacles, 0.8, params.horizon)[0]
+    assert choice.feasible == (contact >= params.horizon)
+
+
+def test_fleeing_forwards_at_speed_the_robot_does_not_flip_to_backing_away():
+    """A robot fleeing forwards at 2 m/s from a walker that closes from behind, its goal
+    behind the walker (A320 campaign episode 69, once reversing was uncapped: backing
+    away at 2 m/s looked like an instant way out, the robot braked for it and was
+    struck). Counted from the 2 s the robot needs to stop, backing off the other way is
+    not clear, and the robot keeps fleeing forwards."""
+    params = HeadingVoParams(v_max=2.0, reverse_max=2.0, deceleration=1.0)
+    walker = (MovingDisc((-3.5, 1.5), (1.3, -0.3), 0.4),)
+    preferred = np.array([-2.0, 0.0])
+    still = choose_heading(np.zeros(2), 0.0, preferred, walker, params, 1.0)
+    rolling = choose_heading(np.zeros(2), 0.0, preferred, walker, params, 1.0, None, None, 2.0)
+    assert still.reverse and still.feasible  # from rest, backing away round it is clear
+    assert not rolling.reverse and rolling.feasible

@@ -713,7 +713,9 @@ class DodgeObstacle(AvoidanceController):
     Reversing: as fast as driving forwards (both lasers watch), unless ``reverse_max``
     caps it; the safety layer's retreat backs away from a chaser at up to the same escape
     factor x its speed. Capped at 1 m/s, a robot reversing from a 1.2 m/s trolley was
-    caught (A320 campaign episode 65).
+    caught (A320 campaign episode 65). A way out that drives the other way than the
+    robot rolls (its wheels' speed, :meth:`measured_motion`) starts once the robot has
+    braked to rest at the platform's acceleration.
 
     Velocity memory: a track slower than it was within the last ``velocity_memory``
     seconds keeps that speed (in the direction it moves now, or the old velocity if it
@@ -803,6 +805,7 @@ class DodgeObstacle(AvoidanceController):
             v_max=v_max,
             reverse_max=v_max if self.reverse_max is None else min(v_max, self.reverse_max),
             omega_max=self.platform.max_angular_speed,
+            deceleration=self.platform.max_acceleration,
         )
         target = self.goal.in_airport(pose)
         to_goal = np.array([target.x - robot.x, target.y - robot.y])
@@ -821,6 +824,7 @@ class DodgeObstacle(AvoidanceController):
             self.radius,
             previous,
             self._speed_scale(obstacles, robot.theta),
+            self.measured_motion()[0],
         )
         self.last = choice
         if choice.speed > 1e-6:

@@ -215,6 +215,10 @@ class HeadingVoParams:
     reverse_max: float = 1.0
     """Top reversing speed (0: never reverse)."""
     omega_max: float = 1.0
+    deceleration: float = math.inf
+    """The platform's braking (m/s^2): a candidate that drives the other way than the
+    robot rolls (:func:`choose_heading`'s ``speed_now``) starts once the robot has
+    stopped. inf: at once."""
     horizon: float = 4.0
     """tau: contacts later than this are ignored (s)."""
     n_heading: int = 36
@@ -241,8 +245,8 @@ class HeadingVoParams:
     def __post_init__(self) -> None:
         if not (self.v_max > 0.0 and self.reverse_max >= 0.0):
             raise ValueError("need v_max > 0 and reverse_max >= 0")
-        if not (self.omega_max > 0.0 and self.horizon > 0.0):
-            raise ValueError("omega_max and horizon must be > 0")
+        if not (self.omega_max > 0.0 and self.horizon > 0.0 and self.deceleration > 0.0):
+            raise ValueError("omega_max, deceleration and horizon must be > 0")
         if self.n_heading < 4 or self.n_speed < 2:
             raise ValueError("need at least 4 headings and 2 speeds")
 
@@ -402,6 +406,7 @@ def choose_heading(
     robot_radius: float,
     previous: FloatArray | None = None,
     speed_scale: Callable[[FloatArray], FloatArray] | None = None,
+    speed_now: float = 0.0,
 ) -> HeadingChoice:
     """The velocity outside every velocity obstacle closest to ``preferred``, for a robot
     that must turn before it drives.
@@ -412,6 +417,12 @@ def choose_heading(
     and its chosen ``speed`` stays the commanded one. Without it an escape at 0.2 m/s
     from a 0.12 m/s trolley, slowed to 0.05 m/s towards a vehicle behind, was taken for
     clear (campaign episode 527).
+
+    ``speed_now`` is the robot's measured forward speed (m/s, negative reversing): a
+    candidate that drives the other way starts no sooner than the robot can stop,
+    ``|speed_now| / deceleration``, counted with its turn. Without it a robot fleeing
+    forwards at 2 m/s took backing away at 2 m/s for an instant escape (A320 campaign
+    episode 69).
 
     Candidates: ``n_heading`` headings round the circle (and the preferred one) times
     ``n_speed`` speeds in [0, v_max] (and the preferred one), driven forwards after
@@ -443,6 +454,9 @@ def choose_heading(
         turn = np.concatenate((turn, (math.pi - np.abs(o[back])) / p.omega_max))
         reverse = np.concatenate((reverse, np.ones(len(rs), dtype=bool)))
     turn = np.where(s > 0.0, turn, 0.0)  # standing still needs no turn
+    if speed_now != 0.0 and math.isfinite(p.deceleration):  # the other way: stop first
+        against = (s > 0.0) & (reverse if speed_now > 0.0 else ~reverse)
+        turn = np.where(against, np.maximum(turn, abs(speed_now) / p.deceleration), turn)
     if speed_scale is None:
         ground = s
     else:  # the speed it will get; one factor per heading, not per candidate
