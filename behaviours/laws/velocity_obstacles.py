@@ -263,7 +263,8 @@ class HeadingChoice:
     """False: every candidate meets a disc within the horizon; this one meets it last."""
     time_to_collision: float
     turn_time: float
-    """Seconds of turning on the spot before the robot drives off (the model's)."""
+    """Seconds before the robot drives off at this velocity (the model's): its turn on the
+    spot, or its braking to rest when longer and it drives the other way than it rolls."""
 
     @property
     def velocity(self) -> FloatArray:
