@@ -31,7 +31,7 @@ from behaviours.keys import COMMAND, OBSTACLES, POSE, SENSOR_FRAME
 from behaviours.laws.localisation import wheel_odometry
 from behaviours.laws.obstacles import vouched_velocity
 from behaviours.laws.rate_limit import RateLimiter, RateLimits
-from behaviours.laws.retreat import heading_clearances, slowdown_scale
+from behaviours.laws.retreat import ESCAPE_FACTOR, heading_clearances, slowdown_scale
 from behaviours.laws.spiral import (
     SpiralAvoidance,
     SpiralObstacle,
@@ -711,11 +711,12 @@ class DodgeObstacle(AvoidanceController):
     escape towards a parked vehicle is slower than commanded (campaign episode 527).
 
     Reversing: as fast as driving forwards (both lasers watch), unless ``reverse_max``
-    caps it; the safety layer's retreat backs away from a chaser at up to the same escape
-    factor x its speed. Capped at 1 m/s, a robot reversing from a 1.2 m/s trolley was
-    caught (A320 campaign episode 65). A way out that drives the other way than the
-    robot rolls (its wheels' speed, :meth:`measured_motion`) starts once the robot has
-    braked to rest at the platform's acceleration.
+    caps it; the safety layer's retreat backs away from a chaser at up to the same
+    :data:`~behaviours.laws.retreat.ESCAPE_FACTOR` x its speed. Capped at 1 m/s, a robot
+    reversing from a 1.2 m/s trolley was caught (A320 campaign episode 65). A way out
+    that drives the other way than the robot rolls (its wheels' speed,
+    :meth:`measured_motion`) starts once the robot has braked to rest at the platform's
+    acceleration.
 
     Velocity memory: a track slower than it was within the last ``velocity_memory``
     seconds keeps that speed (in the direction it moves now, or the old velocity if it
@@ -731,7 +732,7 @@ class DodgeObstacle(AvoidanceController):
         platform: Platform,
         period: float,
         nu_min: float = 0.4,
-        escape_factor: float = 2.0,
+        escape_factor: float = ESCAPE_FACTOR,
         reach: float = 8.0,
         zone_spacing: float = 0.4,
         reverse_max: float | None = None,
